@@ -1,0 +1,33 @@
+# Every target creates .venv and installs from the package registry on a fresh machine.
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+OUT ?= out/paper
+
+.PHONY: demo test lint bench clean
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install --quiet --upgrade pip
+	$(BIN)/pip install --quiet -e '.[dev]'
+	# MAVProxy's full dependency set is over 1 GB (wx, opencv...); the console needs none of it
+	$(BIN)/pip install --quiet --no-deps mavproxy
+	touch $(STAMP)
+
+demo: $(STAMP)
+	$(BIN)/heli-sitl simulate --scenario paper --out $(OUT)
+	@echo "demo outputs in $(OUT)/ (run.csv, summary.json, fig5..fig8 PNGs)"
+
+lint: $(STAMP)
+	$(BIN)/ruff check heli_sitl autopilot ground tests benchmarks
+	$(BIN)/mypy
+
+test: lint
+	$(BIN)/pytest -q
+
+bench: $(STAMP)
+	$(BIN)/python -m benchmarks
+
+clean:
+	rm -rf $(VENV) out .pytest_cache .mypy_cache .ruff_cache

@@ -1,0 +1,99 @@
+"""A flight record (what every runner produces) and the paper's error figures from it."""
+
+from __future__ import annotations
+
+import csv
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from heli_sitl.state import EULER, PHI, POS, PSI, THETA, FloatArray
+
+CSV_HEADER = (
+    "t,x,y,z,phi,theta,psi,x_cmd,y_cmd,z_cmd,psi_cmd,theta_m,theta_t,eps,eta".split(",")
+)
+PITCH_KEYS = ("theta_m", "theta_t", "eps", "eta")
+
+
+@dataclass(frozen=True)
+class FlightRecord:
+    """One row per control tick; frames NWU/FLU, SI units."""
+
+    t_s: FloatArray
+    x: FloatArray  # (N, 12) plant state
+    ref: FloatArray  # (N, 9) commanded pos, vel, acc
+    pitches: FloatArray  # (N, 4)
+    psi_cmd: FloatArray
+    saturated: FloatArray
+    wall_s: float
+    att_cmd: FloatArray | None = None  # (N, 2) commanded roll, pitch where known
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def pos_err_m(self) -> FloatArray:
+        return np.asarray(np.linalg.norm(self.ref[:, 0:3] - self.x[:, POS], axis=1))
+
+    def window(self, t0: float, t1: float) -> FloatArray:
+        return np.asarray((self.t_s >= t0 - 1e-9) & (self.t_s <= t1 + 1e-9))
+
+    def summary(self) -> dict[str, Any]:
+        err = self.pos_err_m
+        end = float(self.t_s[-1])
+        rms: dict[str, float] = {}
+        mx: dict[str, float] = {}
+        for t0 in (0.0, 10.0, 45.0):
+            m = self.window(t0, end)
+            if m.any():
+                key = f"{t0:g}-{end:g}"
+                rms[key] = float(np.sqrt(np.mean(err[m] ** 2)))
+                mx[key] = float(np.max(err[m]))
+        jump = self.window(40.0, 45.0)
+        duration = end - float(self.t_s[0])
+        out: dict[str, Any] = {
+            "rms_pos_err_m": rms,
+            "max_pos_err_m": mx,
+            "max_pos_err_40_45_m": float(np.max(err[jump])) if jump.any() else None,
+            "max_abs_phi_rad": float(np.max(np.abs(self.x[:, PHI]))),
+            "max_abs_theta_rad": float(np.max(np.abs(self.x[:, THETA]))),
+            "pitch_range_rad": {
+                k: [float(self.pitches[:, i].min()), float(self.pitches[:, i].max())]
+                for i, k in enumerate(PITCH_KEYS)
+            },
+            "saturated_ticks": int(np.count_nonzero(self.saturated)),
+            "ticks": int(self.t_s.size),
+            "duration_s": duration,
+            "wall_s": self.wall_s,
+            "realtime_factor": duration / self.wall_s if self.wall_s > 0 else None,
+        }
+        out.update(self.extra)
+        return out
+
+    def rows(self) -> FloatArray:
+        psi = np.unwrap(self.x[:, PSI])
+        e = self.x[:, EULER].copy()
+        e[:, 2] = psi
+        return np.column_stack(
+            [self.t_s, self.x[:, POS], e, self.ref[:, 0:3], self.psi_cmd, self.pitches]
+        )
+
+    def columns(self) -> dict[str, FloatArray]:
+        """The CSV columns by name (plus phi_cmd/theta_cmd where known), for plotting."""
+        cols = {name: self.rows()[:, i] for i, name in enumerate(CSV_HEADER)}
+        if self.att_cmd is not None:
+            cols["phi_cmd"], cols["theta_cmd"] = self.att_cmd[:, 0], self.att_cmd[:, 1]
+        return cols
+
+    def write_csv(self, path: Path) -> None:
+        with path.open("w", newline="") as fh:
+            w = csv.writer(fh)
+            w.writerow(CSV_HEADER)
+            for row in self.rows():
+                w.writerow([f"{v:.9g}" for v in row])
+
+    def write_summary(self, path: Path) -> dict[str, Any]:
+        s = self.summary()
+        path.write_text(json.dumps(s, indent=2) + "\n")
+        return s

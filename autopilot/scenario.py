@@ -1,0 +1,75 @@
+"""A scenario: airframe, gains, trajectory, initial state, duration, rate, feedforward mode."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from autopilot.tlc.controller import Feedforward
+from autopilot.tlc.gains import Gains
+from autopilot.trajectory.base import Trajectory
+from autopilot.trajectory.factory import trajectory_from_table
+from heli_sitl.config import ConfigError, build, read_toml, spec
+from heli_sitl.params import Airframe
+from heli_sitl.state import State
+
+
+@dataclass(frozen=True)
+class InitialState:
+    pos_nwu_m: tuple[float, float, float] = spec("m", -1e6, 1e6)
+    vel_flu_m_s: tuple[float, float, float] = spec("m/s", -100.0, 100.0, default=(0.0, 0.0, 0.0))
+    euler_rad: tuple[float, float, float] = spec("rad", -7.0, 7.0, default=(0.0, 0.0, 0.0))
+    omega_flu_rad_s: tuple[float, float, float] = spec("rad/s", -50.0, 50.0, default=(0.0, 0.0, 0.0))
+
+    def state(self) -> State:
+        return State(self.pos_nwu_m, self.vel_flu_m_s, self.euler_rad, self.omega_flu_rad_s)
+
+
+@dataclass(frozen=True)
+class Run:
+    name: str = spec()
+    duration_s: float = spec("s", 0.0, 1e5, lo_open=True)
+    airframe: str = spec(default="xcell60.toml")
+    gains: str = spec(default="gains_paper.toml")
+    rate_hz: float = spec("Hz", 50.0, 1000.0, default=100.0)
+    feedforward: str = spec(choices=("pseudo", "exact"), default="pseudo")
+    plant_substeps: int = spec("", 1, 1000, default=1)
+
+
+@dataclass(frozen=True)
+class Scenario:
+    run: Run
+    airframe: Airframe
+    gains: Gains
+    trajectory: Trajectory
+    initial: InitialState
+    source: Path = field(default=Path("."))
+
+    @property
+    def feedforward(self) -> Feedforward:
+        return Feedforward(self.run.feedforward)
+
+    @classmethod
+    def load(cls, name_or_path: str | Path) -> Scenario:
+        """Load ``configs/scenario_<name>.toml`` (or a path) and the files it names."""
+        candidate = Path(name_or_path)
+        if candidate.suffix != ".toml":
+            candidate = Path(f"scenario_{name_or_path}.toml")
+        path, table = read_toml(candidate)
+        src = str(path)
+        for key in ("run", "trajectory", "initial_state"):
+            if not isinstance(table.get(key), dict):
+                raise ConfigError(f"{src}: missing table [{key}]")
+        extra = set(table) - {"run", "trajectory", "initial_state"}
+        if extra:
+            raise ConfigError(f"{src}: unknown table(s) {sorted(extra)}; expected run, trajectory, initial_state")
+        run = build(Run, table["run"], f"{src}: run")
+        base = path.parent
+        return cls(
+            run=run,
+            airframe=Airframe.load(base / run.airframe),
+            gains=Gains.load(base / run.gains),
+            trajectory=trajectory_from_table(table["trajectory"], src),
+            initial=build(InitialState, table["initial_state"], f"{src}: initial_state"),
+            source=path,
+        )

@@ -1,0 +1,42 @@
+"""Step 6: thrust and torque command -> the four blade pitches (eqs 34-37), with saturation."""
+
+from __future__ import annotations
+
+from heli_sitl import rotor
+from heli_sitl._jit import njit
+from heli_sitl.params import PlantConstants
+from heli_sitl.state import FloatArray
+
+
+@njit
+def main_rotor_torque(tm: float, c: PlantConstants) -> float:
+    """Qm for thrust Tm through the rotor maps (eq. 35)."""
+    tc_m = tm / c.thrust_scale_m
+    return rotor.torque_coeff(tc_m, c.s_m, c.delta) * c.torque_scale_m
+
+
+@njit
+def solve_cyclic_tail(qc: FloatArray, tm: float, qm: float, c: PlantConstants) -> tuple[float, float, float]:
+    """[Tt, eps, eta] = QA^-1 (Qc - QB) for the design torque model (15), by Cramer's rule.
+
+    QA = [[ht, Qm, Tm hm], [0, Tm hm, -Qm], [lt, 0, -Tm lm]], QB = [0, Tm lm, -Qm];
+    det QA = -(ht hm lm + lt hm^2) Tm^2 - lt Qm^2 < 0 whenever Qm > 0 (always: qc >= delta/8).
+    """
+    a11, a12, a13 = c.ht, qm, tm * c.hm
+    a21, a22, a23 = 0.0, tm * c.hm, -qm
+    a31, a32, a33 = c.lt, 0.0, -tm * c.lm
+    b1, b2, b3 = qc[0], qc[1] - tm * c.lm, qc[2] + qm
+    det = a11 * (a22 * a33 - a23 * a32) - a12 * (a21 * a33 - a23 * a31) + a13 * (a21 * a32 - a22 * a31)
+    d1 = b1 * (a22 * a33 - a23 * a32) - a12 * (b2 * a33 - a23 * b3) + a13 * (b2 * a32 - a22 * b3)
+    d2 = a11 * (b2 * a33 - a23 * b3) - b1 * (a21 * a33 - a23 * a31) + a13 * (a21 * b3 - b2 * a31)
+    d3 = a11 * (a22 * b3 - b2 * a32) - a12 * (a21 * b3 - b2 * a31) + b1 * (a21 * a32 - a22 * a31)
+    return d1 / det, d2 / det, d3 / det
+
+
+@njit
+def clip(v: float, lo: float, hi: float) -> tuple[float, bool]:
+    if v < lo:
+        return lo, True
+    if v > hi:
+        return hi, True
+    return v, False

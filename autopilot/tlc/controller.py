@@ -1,0 +1,280 @@
+"""The TLC controller: ``update(t, state, reference) -> pitches``. No I/O, no clock.
+
+The whole law is one compiled kernel (:func:`tlc_kernel`) over a flat state vector with
+named offsets; :class:`TLController` owns that vector and the constants. The caller owns
+time and must call ``update`` once per control period (zero-order hold on the output).
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from autopilot.tlc.allocation import clip, main_rotor_torque, solve_cyclic_tail
+from autopilot.tlc.differentiator import DiffCoeffs, diff_reset, diff_step, discretize
+from autopilot.tlc.gains import Gains
+from autopilot.tlc.inversion import force_to_thrust_attitude, limit_tilt, yaw_rate_command
+from autopilot.tlc.loops import a3_matrix, a4_matrix
+from heli_sitl import rotor
+from heli_sitl._jit import njit
+from heli_sitl.kinematics import cross, euler_rate_matrix, rot_body_to_earth, wrap_pi
+from heli_sitl.params import Airframe, PlantConstants
+from heli_sitl.state import EULER, N_PITCH, N_STATE, OMEGA, POS, VEL, FloatArray
+
+# reference vector (earth NWU): commanded position and, where known, its derivatives
+REF_POS, REF_VEL, REF_ACC = 0, 3, 6
+N_REF = 9
+
+# controller state layout
+S_I1, S_I2, S_I3, S_I4 = 0, 3, 6, 9  # error integrals of loops 1-4
+S_D_POS = 12  # pseudo-differentiator of Pc (x1[3], x2[3]), feedforward "pseudo" only
+S_D_A = 18  # of a = Rt Vc (loop 2, earth frame)
+S_D_GAMMA = 24  # of gamma_c
+S_D_OMEGA = 30  # of omega_c
+S_PSI_C = 36  # yaw command integral
+S_STARTED = 37  # 0 until the first update initialised the filters
+S_LAST_U = 38  # last valid output (4)
+N_CTRL_STATE = 42
+
+# diagnostics written each tick
+D_PHI_C, D_THETA_C, D_PSI_C, D_TM, D_SAT_MASK, D_TILT_LIMITED, D_STATUS = range(7)
+N_DIAG = 7
+
+# status codes
+OK, BAD_INPUT, BAD_OUTPUT = 0, 1, 2
+
+
+class Feedforward(enum.Enum):
+    PSEUDO = "pseudo"  # pseudo-differentiators everywhere, as the paper
+    EXACT = "exact"  # trajectory derivatives for dPc/dt and the yaw augmentation
+
+
+class TLCConstants(NamedTuple):
+    plant: PlantConstants  # the design model uses the same airframe numbers
+    w2: FloatArray  # (4, 3) omega^2 per loop and channel
+    zw2: FloatArray  # (4, 3) 2 zeta omega
+    limits: FloatArray  # (4, 2) pitch limits [rad]: theta_m, theta_t, eps, eta
+    j: FloatArray  # (3, 3) inertia
+    j_inv: FloatArray
+    diff: DiffCoeffs
+    dt_s: float
+    tilt_max_rad: float
+    yaw_hold_speed_m_s: float
+    exact_ff: bool
+
+
+def make_constants(airframe: Airframe, gains: Gains, rate_hz: float, ff: Feedforward) -> TLCConstants:
+    if not 50.0 <= rate_hz <= 1000.0:
+        raise ValueError(f"control rate must be in [50, 1000] Hz, got {rate_hz}")
+    c = airframe.constants()
+    loops = gains.loops()
+    w = np.array([lg.omega_rad_s for lg in loops], dtype=float)
+    z = np.array([lg.zeta for lg in loops], dtype=float)
+    j = np.array([[c.ixx, 0.0, -c.ixz], [0.0, c.iyy, 0.0], [-c.ixz, 0.0, c.izz]])
+    dt = 1.0 / rate_hz
+    return TLCConstants(
+        plant=c,
+        w2=w**2,
+        zw2=2.0 * z * w,
+        limits=np.array(airframe.limits.as_tuple(), dtype=float),
+        j=j,
+        j_inv=np.linalg.inv(j),
+        diff=discretize(gains.differentiator.omega_rad_s, gains.differentiator.zeta, dt),
+        dt_s=dt,
+        tilt_max_rad=gains.limits.tilt_max_rad,
+        yaw_hold_speed_m_s=gains.limits.yaw_hold_speed_m_s,
+        exact_ff=ff is Feedforward.EXACT,
+    )
+
+
+@njit
+def _all_finite(v: FloatArray) -> bool:
+    for i in range(v.shape[0]):
+        if not math.isfinite(v[i]):
+            return False
+    return True
+
+
+@njit
+def tlc_kernel(
+    k: TLCConstants,
+    st: FloatArray,
+    x: FloatArray,
+    ref: FloatArray,
+    hold_integrators: bool,
+    out: FloatArray,
+    diag: FloatArray,
+) -> int:
+    """One control tick. Reads the measured state ``x`` and reference ``ref``, writes the four
+    pitches to ``out`` and diagnostics to ``diag``; returns a status code.
+
+    ``st`` is updated only when the tick produced a finite command; otherwise ``out`` holds
+    the last valid command (zero pitch before the first) and ``st`` is untouched.
+    """
+    c = k.plant
+    mg = c.mass_kg * c.gravity_m_s2
+    if not (_all_finite(x) and _all_finite(ref[0:3])):
+        out[:] = st[S_LAST_U : S_LAST_U + 4]
+        diag[D_STATUS] = BAD_INPUT
+        return BAD_INPUT
+    s = st.copy()
+    dt = k.dt_s
+    pos, vel, gam, om = x[POS], x[VEL], x[EULER], x[OMEGA]
+    pc = ref[REF_POS : REF_POS + 3]
+    first = s[S_STARTED] == 0.0
+    if first:
+        s[0:12] = 0.0
+        diff_reset(s, S_D_POS, pc)
+        vx0, vy0 = ref[REF_VEL], ref[REF_VEL + 1]
+        if math.isfinite(vx0) and math.isfinite(vy0) and math.hypot(vx0, vy0) > k.yaw_hold_speed_m_s:
+            s[S_PSI_C] = math.atan2(vy0, vx0)  # initial path tangent
+        else:
+            s[S_PSI_C] = gam[2]
+
+    # --- loop 1: position kinematics -> earth-frame velocity command a = Rt Vc
+    dpc = np.empty(3)
+    d2pc = np.empty(3)
+    diff_step(s, S_D_POS, pc, k.diff, dpc, d2pc)
+    if k.exact_ff:
+        dpc[:] = ref[REF_VEL : REF_VEL + 3]
+        d2pc[:] = ref[REF_ACC : REF_ACC + 3]
+    pe = pc - pos
+    a = dpc + k.w2[0] * s[S_I1 : S_I1 + 3] + k.zw2[0] * pe
+    rt = rot_body_to_earth(gam[0], gam[1], gam[2])
+    vc = rt.T @ a
+
+    # --- loop 2: position dynamics (dVc/dt differentiated in the earth frame)
+    ve = vc - vel
+    if first:
+        diff_reset(s, S_D_A, a)
+    da = np.empty(3)
+    unused = np.empty(3)
+    diff_step(s, S_D_A, a, k.diff, da, unused)
+    fc = c.mass_kg * (rt.T @ da) + c.mass_kg * (
+        k.w2[1] * s[S_I2 : S_I2 + 3] + k.zw2[1] * ve - cross(om, ve)
+    )
+    tilt_limited = limit_tilt(fc, mg, k.tilt_max_rad)
+    tm, phi_c, theta_c = force_to_thrust_attitude(fc, mg)
+
+    # --- yaw augmentation: nose along the path tangent
+    dpsi_c = yaw_rate_command(dpc[0], dpc[1], d2pc[0], d2pc[1], k.yaw_hold_speed_m_s)
+    gc = np.empty(3)
+    gc[0], gc[1], gc[2] = phi_c, theta_c, s[S_PSI_C]
+
+    # --- loop 3: attitude kinematics -> body-rate command
+    ge = gc - gam
+    ge[2] = wrap_pi(ge[2])
+    if first:
+        diff_reset(s, S_D_GAMMA, gc)
+    dgc = np.empty(3)
+    diff_step(s, S_D_GAMMA, gc, k.diff, dgc, unused)
+    ec = euler_rate_matrix(gc[0], gc[1])
+    a3 = a3_matrix(gc[0], gc[1], om[0], om[1], om[2])
+    wc = ec @ (dgc + k.w2[2] * s[S_I3 : S_I3 + 3] + k.zw2[2] * ge + a3 @ ge)
+
+    # --- loop 4: attitude dynamics -> torque command
+    we = wc - om
+    if first:
+        diff_reset(s, S_D_OMEGA, wc)
+    dwc = np.empty(3)
+    diff_step(s, S_D_OMEGA, wc, k.diff, dwc, unused)
+    a4 = a4_matrix(wc, k.j, k.j_inv)
+    qc = k.j @ dwc + cross(wc, k.j @ wc) + k.j @ (
+        k.w2[3] * s[S_I4 : S_I4 + 3] + k.zw2[3] * we + a4 @ we
+    )
+
+    # --- allocation with saturation
+    lim = k.limits
+    theta_m, sat_m = clip(
+        rotor.pitch_from_thrust_coeff(tm / c.thrust_scale_m, c.a_m, c.s_m), lim[0, 0], lim[0, 1]
+    )
+    if sat_m:  # recompute the thrust the clipped collective really gives
+        tm = rotor.thrust_coeff(theta_m, c.a_m, c.s_m) * c.thrust_scale_m
+    qm = main_rotor_torque(tm, c)
+    tt, eps, eta = solve_cyclic_tail(qc, tm, qm, c)
+    theta_t, sat_t = clip(
+        rotor.pitch_from_thrust_coeff(tt / c.thrust_scale_t, c.a_t, c.s_t), lim[1, 0], lim[1, 1]
+    )
+    eps, sat_e = clip(eps, lim[2, 0], lim[2, 1])
+    eta, sat_n = clip(eta, lim[3, 0], lim[3, 1])
+    u = np.empty(N_PITCH)
+    u[0], u[1], u[2], u[3] = theta_m, theta_t, eps, eta
+    if not _all_finite(u) or not _all_finite(s):
+        out[:] = st[S_LAST_U : S_LAST_U + 4]
+        diag[D_STATUS] = BAD_OUTPUT
+        return BAD_OUTPUT
+
+    # --- integrators: conditional integration (frozen while any output saturates)
+    saturated = sat_m or sat_t or sat_e or sat_n
+    if not hold_integrators:
+        if not (saturated or tilt_limited):
+            s[S_I1 : S_I1 + 3] += dt * pe
+            s[S_I2 : S_I2 + 3] += dt * ve
+        if not saturated:
+            s[S_I3 : S_I3 + 3] += dt * ge
+            s[S_I4 : S_I4 + 3] += dt * we
+    s[S_PSI_C] += dt * dpsi_c
+    s[S_STARTED] = 1.0
+    s[S_LAST_U : S_LAST_U + 4] = u
+    st[:] = s
+    out[:] = u
+    diag[D_PHI_C], diag[D_THETA_C], diag[D_PSI_C] = gc[0], gc[1], gc[2]
+    diag[D_TM] = tm
+    diag[D_SAT_MASK] = sat_m * 1 + sat_t * 2 + sat_e * 4 + sat_n * 8
+    diag[D_TILT_LIMITED] = tilt_limited
+    diag[D_STATUS] = OK
+    return OK
+
+
+class TLController:
+    """The trajectory linearization controller with its state; one ``update`` per control tick."""
+
+    def __init__(
+        self,
+        airframe: Airframe,
+        gains: Gains,
+        rate_hz: float = 100.0,
+        feedforward: Feedforward | str = Feedforward.PSEUDO,
+    ) -> None:
+        self.airframe = airframe
+        self.feedforward = Feedforward(feedforward)
+        self.rate_hz = float(rate_hz)
+        self.constants = make_constants(airframe, gains, self.rate_hz, self.feedforward)
+        self.gains = gains
+        self.state = np.zeros(N_CTRL_STATE)
+        self.diag = np.zeros(N_DIAG)
+        self._out = np.zeros(N_PITCH)
+
+    @property
+    def dt_s(self) -> float:
+        return self.constants.dt_s
+
+    def reset(self) -> None:
+        """Forget integrals and filter states; the next update re-initialises them."""
+        self.state[:] = 0.0
+
+    def set_gains(self, gains: Gains) -> None:
+        """New gains take effect from the next update; integrals and filters are kept."""
+        self.constants = make_constants(self.airframe, gains, self.rate_hz, self.feedforward)
+        self.gains = gains
+
+    def update(
+        self, t: float, x: FloatArray, ref: FloatArray, *, hold_integrators: bool = False
+    ) -> FloatArray:
+        """Pitches [rad] (theta_m, theta_t, eps, eta) for measured state ``x`` (NWU/FLU) and
+        reference ``ref`` (pos, vel, acc in NWU; vel/acc may be NaN where unknown).
+
+        ``t`` is the tick time; the law is time-invariant given ``ref`` and does not read it.
+        Returns a new array; a non-finite input yields the last valid command.
+        """
+        if x.shape != (N_STATE,) or ref.shape != (N_REF,):
+            raise ValueError(f"state must be ({N_STATE},) and reference ({N_REF},)")
+        tlc_kernel(self.constants, self.state, x, ref, hold_integrators, self._out, self.diag)
+        return self._out.copy()
+
+    @property
+    def status(self) -> int:
+        return int(self.diag[D_STATUS])

@@ -1,0 +1,68 @@
+"""The pseudo-differentiator (paper eq. 3), discretised exactly under zero-order hold.
+
+    dx1/dt = x2,  dx2/dt = -wd^2 (x1 - u) - 2 zd wd x2,   y = x2 ~ du/dt
+
+The filter is linear, so the matrix exponential is computed once per rate and each
+tick is a 2x2 multiply. The filter also yields a second-derivative estimate,
+dx2/dt, used where the yaw augmentation needs u''.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from scipy.linalg import expm
+
+from heli_sitl._jit import njit
+from heli_sitl.state import FloatArray
+
+
+class DiffCoeffs(NamedTuple):
+    """x[k+1] = Ad x[k] + Bd u[k] (ZOH), plus the continuous coefficients for dx2/dt."""
+
+    a11: float
+    a12: float
+    a21: float
+    a22: float
+    b1: float
+    b2: float
+    wd2: float  # wd^2
+    twozw: float  # 2 zd wd
+
+
+def discretize(omega_rad_s: float, zeta: float, dt_s: float) -> DiffCoeffs:
+    a = np.array([[0.0, 1.0], [-(omega_rad_s**2), -2.0 * zeta * omega_rad_s]])
+    b = np.array([0.0, omega_rad_s**2])
+    aug = np.zeros((3, 3))
+    aug[:2, :2] = a
+    aug[:2, 2] = b
+    ph = expm(aug * dt_s)
+    return DiffCoeffs(
+        float(ph[0, 0]), float(ph[0, 1]), float(ph[1, 0]), float(ph[1, 1]),
+        float(ph[0, 2]), float(ph[1, 2]), omega_rad_s**2, 2.0 * zeta * omega_rad_s,
+    )  # fmt: skip
+
+
+@njit
+def diff_reset(st: FloatArray, off: int, u: FloatArray) -> None:
+    """x1 = u, x2 = 0 for the 3 channels stored at st[off:off+6] as (x1[3], x2[3])."""
+    for i in range(3):
+        st[off + i] = u[i]
+        st[off + 3 + i] = 0.0
+
+
+@njit
+def diff_step(st: FloatArray, off: int, u: FloatArray, c: DiffCoeffs, d1: FloatArray, d2: FloatArray) -> None:
+    """Write du/dt (x2) to d1 and d2u/dt2 (dx2/dt) to d2 at this tick, then advance the
+    3 channels one tick with ``u`` held. Reading the outputs before the update makes the
+    filter strictly causal, as a continuous filter sampled at t_k (it reproduces the
+    spec's rate-sensitivity figures: 0.0402 m RMS at 100 Hz)."""
+    for i in range(3):
+        x1, x2 = st[off + i], st[off + 3 + i]
+        n1 = c.a11 * x1 + c.a12 * x2 + c.b1 * u[i]
+        n2 = c.a21 * x1 + c.a22 * x2 + c.b2 * u[i]
+        st[off + i] = n1
+        st[off + 3 + i] = n2
+        d1[i] = x2
+        d2[i] = -c.wd2 * (x1 - u[i]) - c.twozw * x2

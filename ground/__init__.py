@@ -1,0 +1,1 @@
+"""ground: the ground-station side: upload, command, log telemetry, plot."""

@@ -1,0 +1,94 @@
+"""The paper's Figs 5-8 from flight columns (run.csv names): path, position/yaw, attitude, pitches."""
+
+from __future__ import annotations
+
+import csv
+from collections.abc import Mapping
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")  # files only; never needs a display
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import numpy.typing as npt  # noqa: E402
+
+Cols = Mapping[str, npt.NDArray[np.float64]]
+FIGURES = ("fig5_path3d.png", "fig6_position.png", "fig7_attitude.png", "fig8_controls.png")
+
+
+def read_csv_columns(path: Path) -> dict[str, npt.NDArray[np.float64]]:
+    with path.open(newline="") as fh:
+        rows = list(csv.reader(fh))
+    if not rows:
+        raise ValueError(f"{path}: empty CSV")
+    header, data = rows[0], np.array(rows[1:], dtype=float).reshape(-1, len(rows[0]))
+    return {h: data[:, i] for i, h in enumerate(header)}
+
+
+def plot_figures(cols: Cols, out_dir: Path, title: str = "") -> list[Path]:
+    """Write the four figures; returns their paths."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    t = cols["t"]
+    paths = [out_dir / f for f in FIGURES]
+    suffix = f" - {title}" if title else ""
+
+    fig = plt.figure(figsize=(7, 6))
+    ax = fig.add_subplot(projection="3d")
+    ax.plot(cols["x_cmd"], cols["y_cmd"], cols["z_cmd"], "k--", lw=1, label="command")
+    ax.plot(cols["x"], cols["y"], cols["z"], "b", lw=1.2, label="helicopter")
+    ax.set_xlabel("x north [m]")
+    ax.set_ylabel("y west [m]")
+    ax.set_zlabel("z up [m]")
+    ax.set_title(f"Fig. 5: 3-D path (NWU){suffix}")
+    ax.legend()
+    fig.savefig(paths[0], dpi=110)
+    plt.close(fig)
+
+    fig, axs = plt.subplots(4, 1, figsize=(8, 9), sharex=True)
+    for a, key, unit in zip(
+        axs, ("x", "y", "z", "psi"), ("m", "m", "m", "rad"), strict=True
+    ):
+        a.plot(t, cols[f"{key}_cmd"], "k--", lw=1, label="command")
+        a.plot(t, cols[key], "b", lw=1.1, label="actual")
+        a.set_ylabel(f"{key} [{unit}]")
+        a.grid(alpha=0.3)
+    axs[0].legend(loc="upper right")
+    axs[0].set_title(f"Fig. 6: position and yaw vs command{suffix}")
+    axs[-1].set_xlabel("t [s]")
+    fig.tight_layout()
+    fig.savefig(paths[1], dpi=110)
+    plt.close(fig)
+
+    fig, axs = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
+    for a, key in zip(axs, ("phi", "theta"), strict=True):
+        if f"{key}_cmd" in cols:
+            a.plot(t, cols[f"{key}_cmd"], "k--", lw=1, label="command")
+        a.plot(t, cols[key], "b", lw=1.1, label="actual")
+        a.set_ylabel(f"{key} [rad]")
+        a.grid(alpha=0.3)
+    axs[0].legend(loc="upper right")
+    axs[0].set_title(f"Fig. 7: roll and pitch (FLU){suffix}")
+    axs[-1].set_xlabel("t [s]")
+    fig.tight_layout()
+    fig.savefig(paths[2], dpi=110)
+    plt.close(fig)
+
+    fig, axs = plt.subplots(4, 1, figsize=(8, 9), sharex=True)
+    labels = {
+        "theta_m": "main collective",
+        "theta_t": "tail collective",
+        "eps": "longitudinal cyclic",
+        "eta": "lateral cyclic",
+    }
+    for a, (key, label) in zip(axs, labels.items(), strict=True):
+        a.plot(t, cols[key], "b", lw=1.1)
+        a.set_ylabel(f"{key} [rad]")
+        a.set_title(label, fontsize=9)
+        a.grid(alpha=0.3)
+    axs[0].set_title(f"Fig. 8: blade pitches{suffix}\nmain collective", fontsize=9)
+    axs[-1].set_xlabel("t [s]")
+    fig.tight_layout()
+    fig.savefig(paths[3], dpi=110)
+    plt.close(fig)
+    return paths

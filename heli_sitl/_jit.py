@@ -1,0 +1,44 @@
+"""A typed wrapper around numba's njit, with a cache that cannot go stale.
+
+The plant and the control law are scalar numerics called thousands of times a second;
+numba compiles them once and caches the machine code on disk so a tick costs
+microseconds. numba's cache only checks the source file of the function itself, not of
+the functions it inlines from other modules, so an edit to, say, the differentiator
+would leave the controller kernel running old code. The cache directory is therefore
+keyed on a hash of every module that holds compiled code. ``NUMBA_DISABLE_JIT=1`` runs
+the same code as plain Python for debugging; ``NUMBA_CACHE_DIR`` overrides the location.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any, TypeVar, cast
+
+import numba
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+_ROOT = Path(__file__).resolve().parent.parent
+_JIT_SOURCES = ("heli_sitl", "autopilot/tlc")
+
+
+def _source_hash() -> str:
+    h = hashlib.sha256(numba.__version__.encode())
+    for pkg in _JIT_SOURCES:
+        for f in sorted((_ROOT / pkg).glob("*.py")):
+            h.update(f.name.encode())
+            h.update(f.read_bytes())
+    return h.hexdigest()[:16]
+
+
+if not os.environ.get("NUMBA_CACHE_DIR"):
+    _base = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache"))
+    numba.config.CACHE_DIR = str(_base / "heli-tlc-sitl" / f"numba-{_source_hash()}")
+
+
+def njit(fn: F) -> F:
+    """Compile ``fn`` in nopython mode, cached, keeping its static signature for mypy."""
+    return cast(F, numba.njit(cache=True, nogil=True)(fn))

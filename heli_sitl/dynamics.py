@@ -1,0 +1,105 @@
+"""The un-simplified helicopter model (Zhu & Huo eqs 7-13, 16-17) as a pure function.
+
+``derivative(t, x, u, c)`` returns dx/dt for the named state layout of
+:mod:`heli_sitl.state`, pitches ``u`` [rad] and :class:`~heli_sitl.params.PlantConstants`.
+Frames: earth NWU, body FLU, main thrust along +z_body. Torques follow the paper's
+printed eq. 13 (see shared/docs/tlc-model.md section 3 for the physically derived
+alternative and why the printed one is kept).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from heli_sitl import rotor
+from heli_sitl._jit import njit
+from heli_sitl.kinematics import euler_rates, rot_body_to_earth
+from heli_sitl.params import PlantConstants
+from heli_sitl.state import (
+    ETA,
+    EPS,
+    N_STATE,
+    P_X,
+    PHI,
+    PSI,
+    Q_Y,
+    R_Z,
+    THETA,
+    THETA_M,
+    THETA_T,
+    U_F,
+    V_L,
+    W_U,
+    X_N,
+    FloatArray,
+)
+
+
+@njit
+def rotor_loads(theta_m: float, theta_t: float, c: PlantConstants) -> tuple[float, float, float, float]:
+    """(Tm, Qm, Tt, Qt): main and tail thrust [N] and reaction torque [N m] at the given pitches."""
+    tc_m = rotor.thrust_coeff(theta_m, c.a_m, c.s_m)
+    tc_t = rotor.thrust_coeff(theta_t, c.a_t, c.s_t)
+    tm = tc_m * c.thrust_scale_m
+    qm = rotor.torque_coeff(tc_m, c.s_m, c.delta) * c.torque_scale_m
+    tt = tc_t * c.thrust_scale_t
+    qt = rotor.torque_coeff(tc_t, c.s_t, c.delta) * c.torque_scale_t
+    return tm, qm, tt, qt
+
+
+@njit
+def forces_torques(x: FloatArray, u: FloatArray, c: PlantConstants) -> tuple[FloatArray, FloatArray]:
+    """Body-frame force F [N] (gravity included) and torque Q [N m], eqs 12-13."""
+    tm, qm, tt, qt = rotor_loads(u[THETA_M], u[THETA_T], c)
+    eps, eta = u[EPS], u[ETA]
+    seps, ceps, seta, ceta = math.sin(eps), math.cos(eps), math.sin(eta), math.cos(eta)
+    d = math.sqrt(1.0 - seps * seps * seta * seta)
+    sph, cph = math.sin(x[PHI]), math.cos(x[PHI])
+    sth, cth = math.sin(x[THETA]), math.cos(x[THETA])
+    mg = c.mass_kg * c.gravity_m_s2
+    f = np.empty(3)
+    f[0] = mg * sth + tm * seps * ceta / d
+    f[1] = -mg * cth * sph - tm * ceps * seta / d - tt
+    f[2] = -mg * cth * cph + tm * ceps * ceta / d
+    q = np.empty(3)
+    q[0] = tm * c.hm * seta + tt * c.ht + qm * seps
+    q[1] = tm * c.lm + tm * c.hm * seps + qt - qm * seta
+    q[2] = -tm * c.lm * seta + tt * c.lt - qm * ceps * ceta
+    return f, q
+
+
+@njit
+def rigid_body(x: FloatArray, f: FloatArray, q: FloatArray, c: PlantConstants) -> FloatArray:
+    """Newton-Euler: dP = Rt V, m dV = -w x mV + F, dgamma = E^-1 w, J dw = -w x Jw + Q."""
+    u, v, w = x[U_F], x[V_L], x[W_U]
+    p, qr, r = x[P_X], x[Q_Y], x[R_Z]
+    rt = rot_body_to_earth(x[PHI], x[THETA], x[PSI])
+    dx = np.empty(N_STATE)
+    for i in range(3):
+        dx[X_N + i] = rt[i, 0] * u + rt[i, 1] * v + rt[i, 2] * w
+    inv_m = 1.0 / c.mass_kg
+    dx[U_F] = -(qr * w - r * v) + f[0] * inv_m
+    dx[V_L] = -(r * u - p * w) + f[1] * inv_m
+    dx[W_U] = -(p * v - qr * u) + f[2] * inv_m
+    dg = euler_rates(x[PHI], x[THETA], p, qr, r)
+    dx[PHI], dx[THETA], dx[PSI] = dg[0], dg[1], dg[2]
+    # J w with J = [[Ixx,0,-Ixz],[0,Iyy,0],[-Ixz,0,Izz]]
+    hx = c.ixx * p - c.ixz * r
+    hy = c.iyy * qr
+    hz = -c.ixz * p + c.izz * r
+    mx = q[0] - (qr * hz - r * hy)
+    my = q[1] - (r * hx - p * hz)
+    mz = q[2] - (p * hy - qr * hx)
+    dx[P_X] = c.inv_ixx * mx + c.inv_ixz * mz
+    dx[Q_Y] = c.inv_iyy * my
+    dx[R_Z] = c.inv_ixz * mx + c.inv_izz * mz
+    return dx
+
+
+@njit
+def derivative(t: float, x: FloatArray, u: FloatArray, c: PlantConstants) -> FloatArray:
+    """dx/dt of the full model: f(t, x, u, params). ``t`` is unused (time-invariant plant)."""
+    f, q = forces_torques(x, u, c)
+    return rigid_body(x, f, q, c)

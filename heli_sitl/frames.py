@@ -1,0 +1,89 @@
+"""The only place frames change: the paper's NWU/FLU <-> MAVLink's NED/FRD.
+
+T = diag(1, -1, -1) maps both earth NWU -> NED and body FLU -> FRD, and it is its own
+inverse. ZYX Euler angles map as (phi, theta, psi) -> (phi, -theta, -psi) because
+T Rz(psi) Ry(theta) Rx(phi) T = Rz(-psi) Ry(-theta) Rx(phi). Yaw is wrapped to
+(-pi, pi] on the MAVLink side, as ATTITUDE carries it.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from heli_sitl.kinematics import wrap_pi
+from heli_sitl.state import EULER, N_STATE, OMEGA, POS, VEL, FloatArray
+
+Vec3 = tuple[float, float, float]
+
+
+def flip(v: Sequence[float]) -> Vec3:
+    """Apply T = diag(1, -1, -1): NWU <-> NED and FLU <-> FRD (self-inverse)."""
+    return (float(v[0]), -float(v[1]), -float(v[2]))
+
+
+nwu_to_ned = flip
+ned_to_nwu = flip
+flu_to_frd = flip
+frd_to_flu = flip
+
+
+def euler_flu_to_frd(euler_rad: Sequence[float]) -> Vec3:
+    """(phi, theta, psi) in NWU/FLU -> (roll, pitch, yaw) in NED/FRD, yaw in (-pi, pi]."""
+    return (float(euler_rad[0]), -float(euler_rad[1]), wrap_pi(-float(euler_rad[2])))
+
+
+def euler_frd_to_flu(euler_rad: Sequence[float]) -> Vec3:
+    """(roll, pitch, yaw) in NED/FRD -> (phi, theta, psi) in NWU/FLU, psi in (-pi, pi]."""
+    return (float(euler_rad[0]), -float(euler_rad[1]), wrap_pi(-float(euler_rad[2])))
+
+
+def euler_to_quaternion(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
+    """ZYX Euler angles -> unit quaternion (w, x, y, z), Hamilton convention, as MAVLink."""
+    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
+    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
+    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
+    return (
+        cr * cp * cy + sr * sp * sy,
+        sr * cp * cy - cr * sp * sy,
+        cr * sp * cy + sr * cp * sy,
+        cr * cp * sy - sr * sp * cy,
+    )
+
+
+def quaternion_to_euler(q: Sequence[float]) -> Vec3:
+    """Unit quaternion (w, x, y, z) -> ZYX (roll, pitch, yaw)."""
+    w, x, y, z = (float(v) for v in q)
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    w, x, y, z = w / n, x / n, y / n, z / n
+    roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+    pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))
+    yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+    return (roll, pitch, yaw)
+
+
+def state_nwu_to_ned(x: FloatArray) -> tuple[Vec3, Vec3, Vec3, Vec3]:
+    """Plant state -> (pos_ned_m, vel_frd_m_s, euler_frd_rad, omega_frd_rad_s)."""
+    return (
+        nwu_to_ned(x[POS]),
+        flu_to_frd(x[VEL]),
+        euler_flu_to_frd(x[EULER]),
+        flu_to_frd(x[OMEGA]),
+    )
+
+
+def state_ned_to_nwu(
+    pos_ned_m: Sequence[float],
+    vel_frd_m_s: Sequence[float],
+    euler_frd_rad: Sequence[float],
+    omega_frd_rad_s: Sequence[float],
+) -> FloatArray:
+    """(pos_ned_m, vel_frd_m_s, euler_frd_rad, omega_frd_rad_s) -> plant state array."""
+    x = np.empty(N_STATE)
+    x[POS] = ned_to_nwu(pos_ned_m)
+    x[VEL] = frd_to_flu(vel_frd_m_s)
+    x[EULER] = euler_frd_to_flu(euler_frd_rad)
+    x[OMEGA] = frd_to_flu(omega_frd_rad_s)
+    return x

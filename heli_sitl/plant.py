@@ -1,0 +1,80 @@
+"""The plant: state, held pitches, RK4 stepping, ground contact and input guards."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from heli_sitl._jit import njit
+from heli_sitl.contact import apply_ground_contact
+from heli_sitl.integrate import rk4_step
+from heli_sitl.params import Airframe, PlantConstants
+from heli_sitl.state import N_PITCH, N_STATE, FloatArray
+
+
+@njit
+def accept_pitches(u: FloatArray, lo: FloatArray, hi: FloatArray, held: FloatArray) -> bool:
+    """Copy ``u`` clipped to [lo, hi] into ``held``; refuse (False, ``held`` kept) if any is
+    not finite. The only gate between a command and the servos."""
+    for i in range(u.shape[0]):
+        if not np.isfinite(u[i]):
+            return False
+    for i in range(u.shape[0]):
+        held[i] = min(max(u[i], lo[i]), hi[i])
+    return True
+
+
+@njit
+def plant_step(
+    t: float, x: FloatArray, u: FloatArray, c: PlantConstants, dt: float, n_sub: int, contact: bool
+) -> tuple[FloatArray, bool]:
+    """RK4 over one hold interval, then ground contact; returns (new state, on ground)."""
+    y = rk4_step(t, x, u, c, dt, n_sub)
+    on_ground = apply_ground_contact(y) if contact else False
+    return y, on_ground
+
+
+class Plant:
+    """Owns the 6-DOF state; ``step(dt)`` advances it with the held pitches.
+
+    Pitches are clipped to the airframe's servo limits and a non-finite command is refused
+    (the previous one is held), so nothing but a finite, in-range pitch reaches the model.
+    """
+
+    def __init__(
+        self,
+        airframe: Airframe,
+        x0: FloatArray,
+        *,
+        substeps: int = 1,
+        ground_contact: bool = True,
+    ) -> None:
+        if substeps < 1:
+            raise ValueError("substeps must be >= 1")
+        self.airframe = airframe
+        self.constants = airframe.constants()
+        self.x = np.array(x0, dtype=float)
+        if self.x.shape != (N_STATE,) or not np.all(np.isfinite(self.x)):
+            raise ValueError("initial state must be 12 finite numbers")
+        self.t_s = 0.0
+        self.substeps = substeps
+        self.ground_contact = ground_contact
+        self.lo = np.array([lim[0] for lim in airframe.limits.as_tuple()])
+        self.hi = np.array([lim[1] for lim in airframe.limits.as_tuple()])
+        self.u = np.zeros(N_PITCH)
+        self.rejected_commands = 0
+        self.on_ground = False
+
+    def set_pitches(self, u: FloatArray) -> bool:
+        """Hold new pitches [rad]; False (and the old ones kept) if any is not finite."""
+        u = np.asarray(u, dtype=float)
+        if u.shape != (N_PITCH,) or not accept_pitches(u, self.lo, self.hi, self.u):
+            self.rejected_commands += 1
+            return False
+        return True
+
+    def step(self, dt_s: float) -> FloatArray:
+        self.x, self.on_ground = plant_step(
+            self.t_s, self.x, self.u, self.constants, dt_s, self.substeps, self.ground_contact
+        )
+        self.t_s += dt_s
+        return self.x
