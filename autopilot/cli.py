@@ -1,10 +1,104 @@
-"""heli-autopilot: the autopilot process (see ``heli-autopilot --help``)."""
+"""heli-autopilot: the TLC autopilot process (sim link to the plant; GCS link to ground stations)."""
 
 from __future__ import annotations
 
+import argparse
+import json
+import logging
+import signal
 import sys
+import threading
+import time
+from pathlib import Path
+from types import FrameType
+
+from autopilot.flight_log import write_flight_tlog
+from autopilot.links.mavlink_sim import SimLink
+from autopilot.modes import Flight
+from autopilot.runner import Recorder, Runner, RunnerConfig
+from autopilot.scenario import Scenario
+from autopilot.tlc.controller import TLController
+from heli_sitl.config import ConfigError
+from heli_sitl.mavlink_link import LOOPBACK, PortBusyError
+from heli_sitl.servo_map import limits_array
+
+log = logging.getLogger("autopilot")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="heli-autopilot", description=__doc__)
+    p.add_argument("--mode", choices=("lockstep", "realtime"), default="realtime")
+    p.add_argument("--scenario", default="paper", help="airframe, gains and trajectory source")
+    p.add_argument("--rate-hz", type=float, default=None, help="control rate (50-1000 Hz)")
+    p.add_argument("--feedforward", choices=("pseudo", "exact"), default=None)
+    p.add_argument("--duration-s", type=float, default=None, help="stop after this flight time")
+    p.add_argument("--port", type=int, default=4561, help="sim link: UDP port to bind")
+    p.add_argument("--plant-port", type=int, default=4560, help="sim link: the plant's UDP port")
+    p.add_argument("--stale-timeout-s", type=float, default=0.5)
+    p.add_argument(
+        "--autostart", action="store_true", help="arm and fly the scenario trajectory at once"
+    )
+    p.add_argument("--out", default=None, help="write run.csv, summary.json, flight.tlog here")
+    p.add_argument("-v", "--verbose", action="store_true")
+    return p
 
 
 def main(argv: list[str] | None = None) -> int:
-    print("heli-autopilot: not built yet", file=sys.stderr)
-    return 2
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(
+        level=logging.INFO if args.verbose else logging.WARNING,
+        format="heli-autopilot: %(levelname)s %(message)s",
+    )
+    stop = threading.Event()
+
+    def on_signal(signum: int, frame: FrameType | None) -> None:
+        stop.set()
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+    try:
+        return run(args, stop)
+    except ConfigError as exc:
+        print(f"heli-autopilot: config error: {exc}", file=sys.stderr)
+        return 2
+    except PortBusyError as exc:
+        print(f"heli-autopilot: {exc.strerror}", file=sys.stderr)
+        return 3
+
+
+def run(args: argparse.Namespace, stop: threading.Event) -> int:
+    sc = Scenario.load(args.scenario)
+    rate = args.rate_hz or sc.run.rate_hz
+    ctrl = TLController(sc.airframe, sc.gains, rate, args.feedforward or sc.run.feedforward)
+    limits = limits_array(sc.airframe.limits.as_tuple())
+    flight = Flight()
+    if args.autostart:
+        flight.start(sc.trajectory, 0.0)
+        flight.arm()
+    duration = args.duration_s if args.duration_s is not None else (
+        sc.run.duration_s if args.autostart else None
+    )
+    cfg = RunnerConfig(args.mode, rate, duration, args.stale_timeout_s)
+    out = Path(args.out) if args.out else None
+    recorder = Recorder() if out else None
+    t0_unix_us = int(time.time() * 1e6)
+    with SimLink((LOOPBACK, args.port), (LOOPBACK, args.plant_port), limits) as sim:
+        runner = Runner(ctrl, flight, sim, cfg, [], recorder)
+        stats = runner.run(stop)
+        link = sim.udp.stats.as_dict()
+        link["out_of_order"] = sim.assembler.out_of_order
+    if out and recorder is not None:
+        out.mkdir(parents=True, exist_ok=True)
+        record = recorder.record(runner.wall_s, {
+            "mode": args.mode, "rate_hz": rate, "feedforward": ctrl.feedforward.value,
+            "loop": stats.summary(), "sim_link": link,
+        })  # fmt: skip
+        record.write_csv(out / "run.csv")
+        write_flight_tlog(out / "flight.tlog", record, limits, t0_unix_us)
+        summary = record.write_summary(out / "summary.json")
+        log.info("summary: %s", json.dumps(summary))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

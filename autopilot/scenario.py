@@ -11,18 +11,7 @@ from autopilot.trajectory.base import Trajectory
 from autopilot.trajectory.factory import trajectory_from_table
 from heli_sitl.config import ConfigError, build, read_toml, spec
 from heli_sitl.params import Airframe
-from heli_sitl.state import State
-
-
-@dataclass(frozen=True)
-class InitialState:
-    pos_nwu_m: tuple[float, float, float] = spec("m", -1e6, 1e6)
-    vel_flu_m_s: tuple[float, float, float] = spec("m/s", -100.0, 100.0, default=(0.0, 0.0, 0.0))
-    euler_rad: tuple[float, float, float] = spec("rad", -7.0, 7.0, default=(0.0, 0.0, 0.0))
-    omega_flu_rad_s: tuple[float, float, float] = spec("rad/s", -50.0, 50.0, default=(0.0, 0.0, 0.0))
-
-    def state(self) -> State:
-        return State(self.pos_nwu_m, self.vel_flu_m_s, self.euler_rad, self.omega_flu_rad_s)
+from heli_sitl.scenario_state import InitialState, scenario_path
 
 
 @dataclass(frozen=True)
@@ -52,10 +41,7 @@ class Scenario:
     @classmethod
     def load(cls, name_or_path: str | Path) -> Scenario:
         """Load ``configs/scenario_<name>.toml`` (or a path) and the files it names."""
-        candidate = Path(name_or_path)
-        if candidate.suffix != ".toml":
-            candidate = Path(f"scenario_{name_or_path}.toml")
-        path, table = read_toml(candidate)
+        path, table = read_toml(scenario_path(name_or_path))
         src = str(path)
         for key in ("run", "trajectory", "initial_state"):
             if not isinstance(table.get(key), dict):

@@ -22,15 +22,18 @@ import numba
 F = TypeVar("F", bound=Callable[..., Any])
 
 _ROOT = Path(__file__).resolve().parent.parent
-_JIT_SOURCES = ("heli_sitl", "autopilot/tlc")
+_JIT_PACKAGES = ("heli_sitl", "autopilot")
 
 
 def _source_hash() -> str:
+    """Hash of every module that holds compiled code (those that use ``@njit``)."""
     h = hashlib.sha256(numba.__version__.encode())
-    for pkg in _JIT_SOURCES:
-        for f in sorted((_ROOT / pkg).glob("*.py")):
-            h.update(f.name.encode())
-            h.update(f.read_bytes())
+    for pkg in _JIT_PACKAGES:
+        for f in sorted((_ROOT / pkg).rglob("*.py")):
+            text = f.read_bytes()
+            if b"@njit" in text or f.name == "params.py":  # params: the constants' layout
+                h.update(str(f.relative_to(_ROOT)).encode())
+                h.update(text)
     return h.hexdigest()[:16]
 
 

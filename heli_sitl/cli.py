@@ -55,6 +55,68 @@ def _simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _run(args: argparse.Namespace) -> int:
+    import logging
+    import signal
+    import threading
+
+    from heli_sitl.mavlink_link import LOOPBACK, MavlinkUdp, PortBusyError
+    from heli_sitl.plant import Plant
+    from heli_sitl.scenario_state import load_vehicle
+    from heli_sitl.sim import PlantServer, SimConfig
+
+    logging.basicConfig(
+        level=logging.INFO if args.verbose else logging.WARNING,
+        format="heli-sitl: %(levelname)s %(message)s",
+    )
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    airframe, x0, rate = load_vehicle(args.scenario, on_ground=args.on_ground)
+    cfg = SimConfig(args.mode, args.rate_hz or rate, args.duration_s, args.timeout_s)
+    plant = Plant(airframe, x0, substeps=args.plant_substeps)
+    try:
+        link = MavlinkUdp((LOOPBACK, args.port), (LOOPBACK, args.autopilot_port), system_id=1,
+                          component_id=51)  # fmt: skip
+    except PortBusyError as exc:
+        print(f"heli-sitl: {exc.strerror}", file=sys.stderr)
+        return 3
+    with link:
+        stats = PlantServer(plant, link, cfg).run(stop)
+    if args.verbose:
+        print(json.dumps({**stats.__dict__, "link": link.stats.as_dict()}), file=sys.stderr)
+    return 0
+
+
+def _demo(args: argparse.Namespace) -> int:
+    from ground.plots import plot_figures, read_csv_columns
+    from heli_sitl.demo import DemoError, DemoOptions, run_demo
+
+    out = Path(args.out)
+    opts = DemoOptions(mode=args.mode, rate_hz=args.rate_hz, scenario=args.scenario, out=out,
+                       duration_s=args.duration_s)  # fmt: skip
+    try:
+        summary = run_demo(opts)
+    except DemoError as exc:
+        print(f"heli-sitl demo: {exc}", file=sys.stderr)
+        return 1
+    figs = plot_figures(read_csv_columns(out / "run.csv"), out, title=f"{args.mode} {args.rate_hz:g} Hz")
+    rms = summary["rms_pos_err_m"]
+    assert isinstance(rms, dict)
+    print("RMS 3-D position error: " + ", ".join(f"[{k}] s {v:.4f} m" for k, v in rms.items()))
+    loop = summary.get("loop", {})
+    assert isinstance(loop, dict)
+    print(
+        f"loop: p50/p99/max lateness {loop.get('jitter_p50_ms', 0):.3f}/"
+        f"{loop.get('jitter_p99_ms', 0):.3f}/{loop.get('jitter_max_ms', 0):.3f} ms, "
+        f"overruns {loop.get('overruns')}, stale ticks {loop.get('stale_ticks')}; "
+        f"wall {summary['wall_s']:.1f} s"
+    )
+    for f in [out / "run.csv", out / "summary.json", out / "flight.tlog", *figs]:
+        print(f"wrote {f}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="heli-sitl", description=__doc__)
     sub = p.add_subparsers(dest="cmd", required=True)
@@ -67,6 +129,28 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", required=True, help="output directory")
     s.add_argument("--quiet", action="store_true", help="no progress bar")
     s.set_defaults(func=_simulate)
+
+    r = sub.add_parser("run", help="the plant process (sim link on UDP loopback)")
+    r.add_argument("--mode", choices=("lockstep", "realtime"), default="realtime")
+    r.add_argument("--scenario", default="paper", help="airframe and initial state")
+    r.add_argument("--on-ground", action="store_true", help="start on the ground at home")
+    r.add_argument("--rate-hz", type=float, default=None,
+                   help="lockstep: control rate; realtime: physics rate")
+    r.add_argument("--plant-substeps", type=int, default=1)
+    r.add_argument("--duration-s", type=float, default=None)
+    r.add_argument("--port", type=int, default=4560, help="UDP port to bind")
+    r.add_argument("--autopilot-port", type=int, default=4561)
+    r.add_argument("--timeout-s", type=float, default=1.0, help="autopilot silent after this")
+    r.add_argument("-v", "--verbose", action="store_true")
+    r.set_defaults(func=_run)
+
+    d = sub.add_parser("demo", help="plant + autopilot as processes, fly the scenario")
+    d.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep")
+    d.add_argument("--rate-hz", type=float, default=100.0)
+    d.add_argument("--scenario", default="paper")
+    d.add_argument("--duration-s", type=float, default=None)
+    d.add_argument("--out", required=True)
+    d.set_defaults(func=_demo)
     return p
 
 

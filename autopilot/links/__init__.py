@@ -1,0 +1,1 @@
+"""The autopilot's links. ``can_servo``: the DroneCAN servo output."""

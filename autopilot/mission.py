@@ -1,0 +1,797 @@
+"""Mission items and the vehicle side of the MAVLink mission protocol, without I/O or clock.
+
+:class:`MissionServer` is a pure state machine: the GCS link feeds it every decoded
+pymavlink message with ``handle(msg, now_s)`` and calls ``tick(now_s)`` periodically
+(at 10 Hz or faster); both return the pymavlink messages to send. It never reads a
+clock and never touches a socket, so tests drive it with an injected ``now_s``.
+
+Protocol (https://mavlink.io/en/services/mission.html), and the choices made here:
+
+* Upload: MISSION_COUNT -> MISSION_REQUEST_INT(0) -> MISSION_ITEM_INT(0) -> ... ->
+  MISSION_ACK. Legacy MISSION_ITEM is accepted too; once a partner sends one, it is asked
+  with legacy MISSION_REQUEST (as PX4 does). Each item is validated on arrival
+  (:func:`check_item`); the whole mission by the ``check_mission`` callback before the
+  final ACK. Uploads are ATOMIC: the stored mission is replaced only when the final
+  MISSION_ACK is MAV_MISSION_ACCEPTED; any error, cancellation or timeout leaves the
+  previous mission untouched (spec: "A new mission should be fully uploaded and accepted
+  before the old mission is replaced").
+* Timeouts: an item that does not arrive within ``item_timeout_s`` (spec: 250 ms for
+  mission items) is re-requested, up to ``max_retries`` (spec: 5) times in a row; then the
+  upload is abandoned with MISSION_ACK MAV_MISSION_OPERATION_CANCELLED (as ArduPilot).
+* Out-of-sequence items (spec: recoverable, not errors): an item *ahead* of the expected
+  one is dropped and the expected one re-requested at once (once per expected seq, so a
+  GCS that streams items does not cause a request storm; the timer does the rest); a
+  *duplicate* of an item already stored (a GCS answering our retry as well as the
+  original request) is dropped silently, since re-requesting would double every
+  following item. An item that arrives when no upload is in progress is answered with
+  MAV_MISSION_INVALID_SEQUENCE, except a repeat of the last item of the upload just
+  completed, which gets the final ACK again (the GCS missed it; PX4 does the same).
+* MISSION_COUNT from another partner during an upload -> MAV_MISSION_DENIED; from the
+  same partner -> the upload restarts (the GCS restarted it, or our first request was
+  lost). count > ``max_items`` -> MAV_MISSION_NO_SPACE. count == 0 clears the mission.
+* Download: MISSION_REQUEST_LIST -> MISSION_COUNT; then every MISSION_REQUEST_INT (or
+  legacy MISSION_REQUEST, answered with MISSION_ITEM_INT as the spec says) is answered
+  independently, in any order and as often as asked: MAVProxy sends requests for all
+  missing items at once. The items come from a snapshot taken at MISSION_REQUEST_LIST so
+  an upload completing meanwhile cannot mix two missions; the GCS's final MISSION_ACK
+  (or ``download_timeout_s`` of silence) drops the snapshot.
+* MISSION_CLEAR_ALL -> MISSION_ACK; refused with MAV_MISSION_ERROR during an upload.
+* MISSION_SET_CURRENT -> MISSION_CURRENT (broadcast), or a STATUSTEXT if the seq is not
+  in the mission or the ``on_set_current`` callback refuses.
+* Mission types: only MAV_MISSION_TYPE_MISSION is stored. Geofence and rally are
+  "accepted empty", as PX4 does for rally: their download reports 0 items, uploading 0
+  items or clearing them is ACCEPTED, uploading any item is MAV_MISSION_UNSUPPORTED.
+  So the vehicle must NOT advertise MAV_PROTOCOL_CAPABILITY_MISSION_FENCE/_RALLY.
+  MAV_MISSION_TYPE_ALL is valid only in MISSION_CLEAR_ALL.
+* MISSION_ITEM_INT positions: global frames carry degE7 latitude/longitude in x/y for
+  every global frame, the _INT variants and (as QGroundControl, MAVProxy and PX4 do)
+  MAV_FRAME_GLOBAL / GLOBAL_RELATIVE_ALT too; local frames carry metres * 1e4
+  (spec: "position in meters x 1E4"); z is a float in metres.
+* Frames: GLOBAL(_INT) (altitude AMSL, converted with the home altitude),
+  GLOBAL_RELATIVE_ALT(_INT) (above home), LOCAL_NED (about home, the local origin) and
+  MAV_FRAME_MISSION for items without a position (RTL, DO_CHANGE_SPEED, the trajectory
+  header). MAV_FRAME_LOCAL_ENU is refused (MAV_MISSION_UNSUPPORTED_FRAME): neither PX4
+  nor ArduPilot take it in missions, and an ENU <-> NED change would be a second place
+  where frames change besides heli_sitl.frames. Terrain frames are refused (no terrain).
+* Commands: NAV_TAKEOFF, NAV_WAYPOINT, NAV_LOITER_TIME, NAV_LAND, NAV_RETURN_TO_LAUNCH,
+  DO_CHANGE_SPEED, and the two commands of the timed-trajectory encoding
+  (:mod:`autopilot.trajectory_codec`): MAV_CMD_USER_1 (header) and
+  MAV_CMD_WAYPOINT_USER_1 (samples). Anything else -> MAV_MISSION_UNSUPPORTED.
+
+pymavlink 2.4.50's common dialect has no ``opaque_id`` fields, so plan ids are not sent.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any, ClassVar
+
+import numpy as np
+from pymavlink.dialects.v20 import common as mavlink
+
+from autopilot.geo import GeoPoint, geo_to_ned_m
+
+# MAV_MISSION_RESULT codes, named once so the rest of the module reads as the spec.
+ACCEPTED: int = mavlink.MAV_MISSION_ACCEPTED
+ERROR: int = mavlink.MAV_MISSION_ERROR
+UNSUPPORTED_FRAME: int = mavlink.MAV_MISSION_UNSUPPORTED_FRAME
+UNSUPPORTED: int = mavlink.MAV_MISSION_UNSUPPORTED
+NO_SPACE: int = mavlink.MAV_MISSION_NO_SPACE
+INVALID: int = mavlink.MAV_MISSION_INVALID
+INVALID_PARAM1: int = mavlink.MAV_MISSION_INVALID_PARAM1
+INVALID_PARAM2: int = mavlink.MAV_MISSION_INVALID_PARAM2
+INVALID_PARAM3: int = mavlink.MAV_MISSION_INVALID_PARAM3
+INVALID_PARAM4: int = mavlink.MAV_MISSION_INVALID_PARAM4
+INVALID_X: int = mavlink.MAV_MISSION_INVALID_PARAM5_X
+INVALID_Y: int = mavlink.MAV_MISSION_INVALID_PARAM6_Y
+INVALID_Z: int = mavlink.MAV_MISSION_INVALID_PARAM7
+INVALID_SEQUENCE: int = mavlink.MAV_MISSION_INVALID_SEQUENCE
+DENIED: int = mavlink.MAV_MISSION_DENIED
+CANCELLED: int = mavlink.MAV_MISSION_OPERATION_CANCELLED
+
+TYPE_MISSION: int = mavlink.MAV_MISSION_TYPE_MISSION
+TYPE_FENCE: int = mavlink.MAV_MISSION_TYPE_FENCE
+TYPE_RALLY: int = mavlink.MAV_MISSION_TYPE_RALLY
+TYPE_ALL: int = mavlink.MAV_MISSION_TYPE_ALL
+# Fence and rally are "accepted empty" (see the module docstring).
+EMPTY_TYPES: frozenset[int] = frozenset({TYPE_FENCE, TYPE_RALLY})
+
+CMD_TAKEOFF: int = mavlink.MAV_CMD_NAV_TAKEOFF
+CMD_WAYPOINT: int = mavlink.MAV_CMD_NAV_WAYPOINT
+CMD_LOITER_TIME: int = mavlink.MAV_CMD_NAV_LOITER_TIME
+CMD_LAND: int = mavlink.MAV_CMD_NAV_LAND
+CMD_RTL: int = mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH
+CMD_CHANGE_SPEED: int = mavlink.MAV_CMD_DO_CHANGE_SPEED
+# The timed-trajectory encoding (autopilot.trajectory_codec): the "user defined" commands
+# whose params the MAVLink spec leaves to the vehicle, so no standard meaning is bent.
+CMD_TRAJ_HEADER: int = mavlink.MAV_CMD_USER_1
+CMD_TRAJ_SAMPLE: int = mavlink.MAV_CMD_WAYPOINT_USER_1
+SUPPORTED_COMMANDS: frozenset[int] = frozenset(
+    {
+        CMD_TAKEOFF,
+        CMD_WAYPOINT,
+        CMD_LOITER_TIME,
+        CMD_LAND,
+        CMD_RTL,
+        CMD_CHANGE_SPEED,
+        CMD_TRAJ_HEADER,
+        CMD_TRAJ_SAMPLE,
+    }
+)
+
+FRAME_GLOBAL: int = mavlink.MAV_FRAME_GLOBAL
+FRAME_GLOBAL_INT: int = mavlink.MAV_FRAME_GLOBAL_INT
+FRAME_GLOBAL_REL: int = mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT
+FRAME_GLOBAL_REL_INT: int = mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT
+FRAME_LOCAL_NED: int = mavlink.MAV_FRAME_LOCAL_NED
+FRAME_MISSION: int = mavlink.MAV_FRAME_MISSION
+AMSL_FRAMES: frozenset[int] = frozenset({FRAME_GLOBAL, FRAME_GLOBAL_INT})
+RELATIVE_FRAMES: frozenset[int] = frozenset({FRAME_GLOBAL_REL, FRAME_GLOBAL_REL_INT})
+# Frames whose x/y are latitude/longitude (the terrain ones are listed only so that a
+# legacy MISSION_ITEM in them is scaled right before being refused).
+GLOBAL_FRAMES: frozenset[int] = frozenset(
+    AMSL_FRAMES
+    | RELATIVE_FRAMES
+    | {mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT, mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT}
+)
+LOCAL_FRAMES: frozenset[int] = frozenset(
+    {
+        FRAME_LOCAL_NED,
+        mavlink.MAV_FRAME_LOCAL_ENU,
+        mavlink.MAV_FRAME_LOCAL_OFFSET_NED,
+        mavlink.MAV_FRAME_BODY_NED,
+        mavlink.MAV_FRAME_BODY_OFFSET_NED,
+        mavlink.MAV_FRAME_BODY_FRD,
+        mavlink.MAV_FRAME_LOCAL_FRD,
+        mavlink.MAV_FRAME_LOCAL_FLU,
+    }
+)
+POSITION_FRAMES: frozenset[int] = frozenset(AMSL_FRAMES | RELATIVE_FRAMES | {FRAME_LOCAL_NED})
+
+DEG_E7 = 1e7  # MISSION_ITEM_INT x/y scale in global frames
+LOCAL_E4 = 1e4  # MISSION_ITEM_INT x/y scale in local frames: metres * 1e4
+INT32_MIN, INT32_MAX = -(2**31), 2**31 - 1
+UINT16_MAX = 2**16 - 1
+
+# DO_CHANGE_SPEED param1 speed types and param2 special values (MAVLink common.xml)
+SPEED_TYPE_AIRSPEED, SPEED_TYPE_GROUNDSPEED, SPEED_TYPE_CLIMB, SPEED_TYPE_DESCENT = 0, 1, 2, 3
+SPEED_NO_CHANGE, SPEED_DEFAULT = -1.0, -2.0
+
+# Timed-trajectory sample: param2 is a bit mask of axes (N=1, E=2, D=4) whose spline is
+# split at this sample (a corner: the derivative may jump). See trajectory_codec.
+BREAK_MASK_ALL = 7
+
+Message = Any  # a pymavlink MAVLink_message (pymavlink is untyped)
+
+
+def _f32(value: float) -> float:
+    """The float32 the wire will carry: items compare equal after an upload round trip."""
+    with np.errstate(over="ignore"):
+        return float(np.float32(value))
+
+
+class ItemError(ValueError):
+    """A MISSION_ITEM that cannot be represented; ``result`` is the MAV_MISSION_RESULT."""
+
+    def __init__(self, result: int, text: str) -> None:
+        super().__init__(text)
+        self.result = result
+
+
+@dataclass(frozen=True)
+class MissionItem:
+    """One mission item in MISSION_ITEM_INT encoding (what is stored and downloaded).
+
+    ``x``/``y`` are int32 as on the wire: degE7 in global frames, metres * 1e4 in local
+    frames, raw values otherwise. ``param1..4`` and ``z`` are rounded to float32 on
+    construction, so an item equals itself after a trip through MAVLink.
+    """
+
+    seq: int
+    frame: int
+    command: int
+    param1: float = 0.0
+    param2: float = 0.0
+    param3: float = 0.0
+    param4: float = 0.0
+    x: int = 0
+    y: int = 0
+    z: float = 0.0
+    autocontinue: bool = True
+    current: bool = False
+    mission_type: int = TYPE_MISSION
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.seq <= UINT16_MAX:
+            raise ValueError(f"seq must be a uint16, got {self.seq}")
+        for name in ("x", "y"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or not INT32_MIN <= v <= INT32_MAX:
+                raise ValueError(f"{name} must be an int32, got {v!r}")
+        for name in ("param1", "param2", "param3", "param4", "z"):
+            object.__setattr__(self, name, _f32(getattr(self, name)))
+
+    @classmethod
+    def from_message(cls, msg: Message) -> MissionItem:
+        """A decoded MISSION_ITEM_INT or legacy MISSION_ITEM -> item (raises ItemError)."""
+        kind = msg.get_type()
+        if kind == "MISSION_ITEM_INT":
+            x, y = int(msg.x), int(msg.y)
+        elif kind == "MISSION_ITEM":
+            x, y = _legacy_xy(int(msg.frame), float(msg.x), float(msg.y))
+        else:
+            raise TypeError(f"not a mission item: {kind}")
+        return cls(
+            seq=int(msg.seq),
+            frame=int(msg.frame),
+            command=int(msg.command),
+            param1=float(msg.param1),
+            param2=float(msg.param2),
+            param3=float(msg.param3),
+            param4=float(msg.param4),
+            x=x,
+            y=y,
+            z=float(msg.z),
+            autocontinue=bool(msg.autocontinue),
+            current=bool(msg.current),
+            mission_type=int(getattr(msg, "mission_type", TYPE_MISSION)),
+        )
+
+    def to_message(
+        self, target_system: int, target_component: int, current: bool | None = None
+    ) -> Message:
+        """This item as a MISSION_ITEM_INT to ``target_system``/``target_component``."""
+        return mavlink.MAVLink_mission_item_int_message(
+            target_system,
+            target_component,
+            self.seq,
+            self.frame,
+            self.command,
+            int(self.current if current is None else current),
+            int(self.autocontinue),
+            self.param1,
+            self.param2,
+            self.param3,
+            self.param4,
+            self.x,
+            self.y,
+            self.z,
+            self.mission_type,
+        )
+
+    @property
+    def lat_deg(self) -> float:
+        return self.x / DEG_E7
+
+    @property
+    def lon_deg(self) -> float:
+        return self.y / DEG_E7
+
+    @property
+    def local_north_m(self) -> float:
+        return self.x / LOCAL_E4
+
+    @property
+    def local_east_m(self) -> float:
+        return self.y / LOCAL_E4
+
+
+def _legacy_xy(frame: int, x: float, y: float) -> tuple[int, int]:
+    """Float x/y of a legacy MISSION_ITEM -> the int32 MISSION_ITEM_INT encoding."""
+    if frame in GLOBAL_FRAMES:
+        if math.isnan(x) and math.isnan(y):
+            return 0, 0  # "no position given" (e.g. land here), as 0/0 in MISSION_ITEM_INT
+        scale = DEG_E7
+    elif frame in LOCAL_FRAMES:
+        scale = LOCAL_E4
+    else:
+        # MAV_FRAME_MISSION: x/y are free integer params; none of our commands use them.
+        return (round(x) if math.isfinite(x) else 0, round(y) if math.isfinite(y) else 0)
+    out = []
+    for value, code, name in ((x, INVALID_X, "x"), (y, INVALID_Y, "y")):
+        if not math.isfinite(value):
+            raise ItemError(code, f"{name} is not finite: {value}")
+        scaled = round(value * scale)
+        if not INT32_MIN <= scaled <= INT32_MAX:
+            raise ItemError(code, f"{name} out of range: {value}")
+        out.append(scaled)
+    return out[0], out[1]
+
+
+@dataclass(frozen=True)
+class ItemLimits:
+    """What this vehicle accepts in a mission item."""
+
+    max_range_m: float = 5_000.0  # horizontal distance from home
+    min_alt_m: float = -100.0  # altitude relative to home
+    max_alt_m: float = 1_000.0
+    max_hold_s: float = 3_600.0  # NAV_WAYPOINT hold, NAV_LOITER_TIME
+    max_speed_m_s: float = 20.0  # DO_CHANGE_SPEED
+    max_time_s: float = 86_400.0  # timed-trajectory sample times
+
+
+DEFAULT_LIMITS = ItemLimits()
+
+
+@dataclass(frozen=True)
+class ItemPosition:
+    """Where a positional item goes, local NED about home; None = "where the vehicle is"."""
+
+    north_east_m: tuple[float, float] | None
+    down_m: float | None
+
+
+def _here(item: MissionItem) -> bool:
+    """0/0 lat/lon in a global frame means "no position given" (land/take off here)."""
+    return item.frame in GLOBAL_FRAMES and item.x == 0 and item.y == 0
+
+
+def item_position_ned_m(item: MissionItem, home: GeoPoint | None) -> ItemPosition:
+    """The item's target in local NED [m] about home (needs home for global frames).
+
+    In global frames 0/0 lat/lon means "current horizontal position" and a NaN z means
+    "current altitude"; the caller supplies the vehicle position for those.
+    """
+    down: float | None = None if math.isnan(item.z) else item.z
+    if item.frame == FRAME_LOCAL_NED:
+        return ItemPosition((item.local_north_m, item.local_east_m), down)
+    if item.frame in AMSL_FRAMES or item.frame in RELATIVE_FRAMES:
+        if home is None:
+            raise ValueError("a global-frame mission item needs the home position")
+        ne: tuple[float, float] | None = None
+        if not _here(item):
+            n, e, _ = geo_to_ned_m(home, item.lat_deg, item.lon_deg, home.alt_amsl_m)
+            ne = (n, e)
+        if down is not None and item.frame in AMSL_FRAMES:
+            down = home.alt_amsl_m - item.z
+        elif down is not None:
+            down = -item.z
+        return ItemPosition(ne, down)
+    raise ValueError(f"frame {item.frame} carries no position")
+
+
+def _in(value: float, lo: float, hi: float) -> bool:
+    return math.isfinite(value) and lo <= value <= hi
+
+
+def _check_position(
+    item: MissionItem, home: GeoPoint | None, limits: ItemLimits, here_ok: bool, nan_z_ok: bool
+) -> int:
+    """Frame and x/y/z checks of a positional item -> MAV_MISSION_RESULT."""
+    if item.frame not in POSITION_FRAMES:
+        return UNSUPPORTED_FRAME
+    if item.frame == FRAME_LOCAL_NED:
+        if abs(item.local_north_m) > limits.max_range_m:
+            return INVALID_X
+        if abs(item.local_east_m) > limits.max_range_m:
+            return INVALID_Y
+        up_m = -item.z
+    else:
+        if _here(item):
+            if not here_ok:
+                return INVALID_X  # a waypoint needs a position; 0/0 is "none given"
+        else:
+            if not -90.0 <= item.lat_deg <= 90.0:
+                return INVALID_X
+            if not -180.0 <= item.lon_deg <= 180.0:
+                return INVALID_Y
+            if home is not None:
+                n, e, _ = geo_to_ned_m(home, item.lat_deg, item.lon_deg, home.alt_amsl_m)
+                if abs(n) > limits.max_range_m:
+                    return INVALID_X
+                if abs(e) > limits.max_range_m:
+                    return INVALID_Y
+        if item.frame in AMSL_FRAMES:
+            # Without home the AMSL altitude cannot be related to the ground: range-check
+            # only when it can be converted.
+            up_m = item.z - home.alt_amsl_m if home is not None else 0.0
+            if math.isnan(item.z):
+                up_m = math.nan
+        else:
+            up_m = item.z
+    if math.isnan(up_m) and nan_z_ok:
+        return ACCEPTED
+    if not _in(up_m, limits.min_alt_m, limits.max_alt_m):
+        return INVALID_Z
+    return ACCEPTED
+
+
+def check_item(
+    item: MissionItem, home: GeoPoint | None, limits: ItemLimits = DEFAULT_LIMITS
+) -> int:
+    """Validate one item -> MAV_MISSION_ACCEPTED or the MAV_MISSION_RESULT error code.
+
+    Order: command, frame, params 1-4, x, y, z (the first failure is reported). Params a
+    command does not use on this vehicle are not checked (e.g. NAV_WAYPOINT acceptance
+    radius and yaw: the trajectory passes exactly through the point and the TLC holds
+    heading along the velocity).
+    """
+    cmd = item.command
+    if cmd not in SUPPORTED_COMMANDS:
+        return UNSUPPORTED
+    if cmd in (CMD_RTL, CMD_CHANGE_SPEED):
+        if item.frame not in POSITION_FRAMES | {FRAME_MISSION}:
+            return UNSUPPORTED_FRAME
+        if cmd == CMD_CHANGE_SPEED:
+            if item.param1 not in (
+                SPEED_TYPE_AIRSPEED,
+                SPEED_TYPE_GROUNDSPEED,
+                SPEED_TYPE_CLIMB,
+                SPEED_TYPE_DESCENT,
+            ):
+                return INVALID_PARAM1
+            speed = item.param2
+            if speed not in (SPEED_NO_CHANGE, SPEED_DEFAULT) and not (
+                _in(speed, 0.0, limits.max_speed_m_s) and speed > 0.0
+            ):
+                return INVALID_PARAM2
+        return ACCEPTED
+    if cmd == CMD_TRAJ_HEADER:
+        if item.frame != FRAME_MISSION:
+            return UNSUPPORTED_FRAME
+        for code, v in (
+            (INVALID_PARAM1, item.param1),
+            (INVALID_PARAM2, item.param2),
+            (INVALID_PARAM3, item.param3),
+            (INVALID_PARAM4, item.param4),
+        ):
+            if not math.isfinite(v):
+                return code
+        return ACCEPTED if math.isfinite(item.z) else INVALID_Z
+    if cmd == CMD_TRAJ_SAMPLE:
+        if item.frame != FRAME_LOCAL_NED:
+            return UNSUPPORTED_FRAME
+        if not _in(item.param1, 0.0, limits.max_time_s):
+            return INVALID_PARAM1
+        if not (_in(item.param2, 0.0, BREAK_MASK_ALL) and item.param2.is_integer()):
+            return INVALID_PARAM2  # axis bit mask
+        if item.param3 != 0.0:
+            return INVALID_PARAM3  # reserved
+        if not (math.isnan(item.param4) or _in(item.param4, -360.0, 360.0)):
+            return INVALID_PARAM4
+        return _check_position(item, home, limits, here_ok=False, nan_z_ok=False)
+    if cmd in (CMD_WAYPOINT, CMD_LOITER_TIME) and not _in(item.param1, 0.0, limits.max_hold_s):
+        return INVALID_PARAM1  # hold time [s]
+    return _check_position(
+        item,
+        home,
+        limits,
+        here_ok=cmd in (CMD_TAKEOFF, CMD_LAND, CMD_LOITER_TIME),
+        nan_z_ok=cmd == CMD_LAND,
+    )
+
+
+MissionCheck = Callable[[tuple[MissionItem, ...]], int]
+SetCurrentCheck = Callable[[int], bool]
+MissionChanged = Callable[[tuple[MissionItem, ...]], None]
+Partner = tuple[int, int]
+
+
+@dataclass
+class _Upload:
+    partner: Partner
+    count: int
+    items: list[MissionItem]
+    last_request_s: float
+    retries: int = 0
+    legacy: bool = False  # the partner sends MISSION_ITEM: ask with MISSION_REQUEST
+    rerequested: bool = False  # the expected seq was re-requested on an early item
+
+
+@dataclass
+class _Download:
+    items: tuple[MissionItem, ...]
+    last_s: float
+
+
+@dataclass
+class _Done:
+    partner: Partner
+    count: int
+    result: int
+
+
+@dataclass
+class MissionServer:
+    """Vehicle side of the mission protocol (see the module docstring for the rules).
+
+    ``check_mission(items)`` validates a complete upload before it replaces the stored
+    mission (return MAV_MISSION_ACCEPTED or an error code, e.g. MAV_MISSION_DENIED while
+    flying when the mission cannot be turned into a trajectory; a ValueError counts as
+    MAV_MISSION_INVALID). It is also asked about clearing (an empty tuple).
+    ``on_set_current(seq)`` lets the flight logic refuse MISSION_SET_CURRENT.
+    ``on_mission_changed(items)`` is called after the stored mission was replaced.
+    """
+
+    system_id: int = 1
+    component_id: int = 1
+    home: GeoPoint | None = None
+    limits: ItemLimits = DEFAULT_LIMITS
+    max_items: int = 2_000
+    item_timeout_s: float = 0.25  # spec: "Timeout (mission items): 250 ms"
+    max_retries: int = 5  # spec: "Retries (max): 5"
+    download_timeout_s: float = 5.0
+    check_mission: MissionCheck | None = None
+    on_set_current: SetCurrentCheck | None = None
+    on_mission_changed: MissionChanged | None = None
+    _mission: tuple[MissionItem, ...] = field(default=(), init=False)
+    current_seq: int = field(default=0, init=False)
+    generation: int = field(default=0, init=False)  # bumps whenever the mission changes
+    _upload: _Upload | None = field(default=None, init=False)
+    _last_done: _Done | None = field(default=None, init=False)
+    _downloads: dict[tuple[Partner, int], _Download] = field(default_factory=dict, init=False)
+
+    def __post_init__(self) -> None:
+        if not 0 < self.max_items <= UINT16_MAX:
+            raise ValueError(f"max_items must be in (0, {UINT16_MAX}], got {self.max_items}")
+        if not self.item_timeout_s > 0.0 or self.max_retries < 0:
+            raise ValueError("item_timeout_s must be > 0 and max_retries >= 0")
+
+    # ----------------------------------------------------------------- state access
+
+    @property
+    def mission(self) -> tuple[MissionItem, ...]:
+        """The stored (accepted) mission."""
+        return self._mission
+
+    @property
+    def upload_in_progress(self) -> bool:
+        return self._upload is not None
+
+    def load(self, items: Sequence[MissionItem]) -> None:
+        """Replace the stored mission directly (e.g. from a file at start-up), renumbered."""
+        self._replace(
+            tuple(replace(it, seq=i, mission_type=TYPE_MISSION) for i, it in enumerate(items))
+        )
+
+    # ----------------------------------------------------------------- input
+
+    def handle(self, msg: Message, now_s: float) -> list[Message]:
+        """Process one decoded message; returns the messages to send (maybe none)."""
+        kind = msg.get_type()
+        handler = self._HANDLERS.get(kind)
+        if handler is None or not self._addressed_to_me(msg):
+            return []
+        return handler(self, msg, now_s)
+
+    def tick(self, now_s: float) -> list[Message]:
+        """Timeouts: re-request a missing item, abandon a dead upload, drop stale snapshots."""
+        out: list[Message] = []
+        up = self._upload
+        if up is not None and now_s - up.last_request_s >= self.item_timeout_s:
+            if up.retries >= self.max_retries:
+                # Give up; the previous mission stays (atomic upload). Tell the GCS, as
+                # ArduPilot does, in case it is still there.
+                self._upload = None
+                out.append(self._ack(up.partner, CANCELLED, TYPE_MISSION))
+                out.append(self._text(mavlink.MAV_SEVERITY_WARNING, "Mission upload timed out"))
+            else:
+                up.retries += 1
+                out.append(self._request(up, now_s))
+        for key, dl in list(self._downloads.items()):
+            if now_s - dl.last_s > self.download_timeout_s:
+                del self._downloads[key]
+        return out
+
+    # ----------------------------------------------------------------- flight logic
+
+    def set_current(self, seq: int) -> list[Message]:
+        """The flight logic moved to item ``seq``: broadcast MISSION_CURRENT if it changed."""
+        if not 0 <= seq < max(len(self._mission), 1) or seq == self.current_seq:
+            return []
+        self.current_seq = seq
+        return [self.mission_current_message()]
+
+    def item_reached(self, seq: int) -> list[Message]:
+        """The flight logic reached item ``seq``: MISSION_ITEM_REACHED to broadcast."""
+        return [mavlink.MAVLink_mission_item_reached_message(seq)]
+
+    def mission_current_message(
+        self, mission_state: int | None = None, mission_mode: int = 0
+    ) -> Message:
+        """MISSION_CURRENT for the telemetry stream (spec: total = UINT16_MAX if no mission)."""
+        total = len(self._mission) if self._mission else UINT16_MAX
+        if mission_state is None:
+            mission_state = (
+                mavlink.MISSION_STATE_NOT_STARTED
+                if self._mission
+                else mavlink.MISSION_STATE_NO_MISSION
+            )
+        return mavlink.MAVLink_mission_current_message(
+            self.current_seq, total, mission_state, mission_mode
+        )
+
+    # ----------------------------------------------------------------- handlers
+
+    def _on_count(self, msg: Message, now_s: float) -> list[Message]:
+        partner = _partner(msg)
+        mtype = int(getattr(msg, "mission_type", TYPE_MISSION))
+        count = int(msg.count)
+        up = self._upload
+        if up is not None and up.partner != partner:
+            return [self._ack(partner, DENIED, mtype)]  # one upload at a time
+        self._upload = None  # the same partner restarting: start again from scratch
+        if mtype in EMPTY_TYPES:
+            return [self._ack(partner, ACCEPTED if count == 0 else UNSUPPORTED, mtype)]
+        if mtype != TYPE_MISSION:
+            return [self._ack(partner, UNSUPPORTED, mtype)]
+        if count > self.max_items:
+            return [self._ack(partner, NO_SPACE, mtype)]
+        if count == 0:
+            result = self._accept(())
+            self._last_done = _Done(partner, 0, result)
+            return [self._ack(partner, result, mtype)]
+        self._last_done = None
+        self._upload = _Upload(partner, count, [], now_s)
+        return [self._request(self._upload, now_s)]
+
+    def _on_item(self, msg: Message, now_s: float) -> list[Message]:
+        partner = _partner(msg)
+        mtype = int(getattr(msg, "mission_type", TYPE_MISSION))
+        seq = int(msg.seq)
+        up = self._upload
+        if up is None:
+            done = self._last_done
+            if done is not None and done.partner == partner and seq == done.count - 1:
+                return [self._ack(partner, done.result, mtype)]  # our final ACK was lost
+            return [self._ack(partner, INVALID_SEQUENCE, mtype)]
+        if partner != up.partner:
+            return [self._ack(partner, DENIED, mtype)]
+        if msg.get_type() == "MISSION_ITEM":
+            up.legacy = True
+        expected = len(up.items)
+        if seq < expected:
+            return []  # duplicate of a stored item: drop (see module docstring)
+        if seq > expected:
+            if up.rerequested:
+                return []
+            up.rerequested = True
+            return [self._request(up, now_s)]
+        if mtype != TYPE_MISSION:
+            return self._abort(up, ERROR)
+        try:
+            item = MissionItem.from_message(msg)
+        except ItemError as exc:
+            return self._abort(up, exc.result)
+        result = check_item(item, self.home, self.limits)
+        if result != ACCEPTED:
+            return self._abort(up, result)
+        up.items.append(item)
+        up.retries = 0
+        up.rerequested = False
+        if len(up.items) < up.count:
+            return [self._request(up, now_s)]
+        self._upload = None
+        result = self._accept(tuple(up.items))
+        self._last_done = _Done(partner, up.count, result)
+        return [self._ack(partner, result, TYPE_MISSION)]
+
+    def _on_request_list(self, msg: Message, now_s: float) -> list[Message]:
+        partner = _partner(msg)
+        mtype = int(getattr(msg, "mission_type", TYPE_MISSION))
+        if mtype == TYPE_MISSION:
+            items = self._mission
+        elif mtype in EMPTY_TYPES:
+            items = ()
+        else:
+            return [self._ack(partner, UNSUPPORTED, mtype)]
+        self._downloads[(partner, mtype)] = _Download(items, now_s)
+        return [mavlink.MAVLink_mission_count_message(partner[0], partner[1], len(items), mtype)]
+
+    def _on_request(self, msg: Message, now_s: float) -> list[Message]:
+        partner = _partner(msg)
+        mtype = int(getattr(msg, "mission_type", TYPE_MISSION))
+        seq = int(msg.seq)
+        dl = self._downloads.get((partner, mtype))
+        if dl is not None:
+            dl.last_s = now_s
+            items = dl.items
+        elif mtype == TYPE_MISSION:
+            items = self._mission
+        elif mtype in EMPTY_TYPES:
+            items = ()
+        else:
+            return [self._ack(partner, UNSUPPORTED, mtype)]
+        if not 0 <= seq < len(items):
+            return [self._ack(partner, INVALID_SEQUENCE, mtype)]
+        is_current = mtype == TYPE_MISSION and seq == self.current_seq
+        return [items[seq].to_message(partner[0], partner[1], current=is_current)]
+
+    def _on_ack(self, msg: Message, now_s: float) -> list[Message]:
+        partner = _partner(msg)
+        mtype = int(getattr(msg, "mission_type", TYPE_MISSION))
+        # The end of a download (any result), or a cancellation of our upload by the GCS.
+        self._downloads.pop((partner, mtype), None)
+        up = self._upload
+        if up is not None and up.partner == partner and int(msg.type) != ACCEPTED:
+            self._upload = None
+        return []
+
+    def _on_clear_all(self, msg: Message, now_s: float) -> list[Message]:
+        partner = _partner(msg)
+        mtype = int(getattr(msg, "mission_type", TYPE_MISSION))
+        if self._upload is not None:
+            return [self._ack(partner, ERROR, mtype)]  # busy: "not accepting ... right now"
+        if mtype in EMPTY_TYPES:
+            return [self._ack(partner, ACCEPTED, mtype)]
+        if mtype not in (TYPE_MISSION, TYPE_ALL):
+            return [self._ack(partner, UNSUPPORTED, mtype)]
+        return [self._ack(partner, self._accept(()), mtype)]
+
+    def _on_set_current(self, msg: Message, now_s: float) -> list[Message]:
+        seq = int(msg.seq)
+        if not 0 <= seq < len(self._mission):
+            return [self._text(mavlink.MAV_SEVERITY_WARNING, f"Mission seq {seq} not in mission")]
+        if self.on_set_current is not None and not self.on_set_current(seq):
+            return [self._text(mavlink.MAV_SEVERITY_WARNING, f"Mission seq {seq} refused")]
+        self.current_seq = seq
+        return [self.mission_current_message()]
+
+    _HANDLERS: ClassVar[dict[str, Callable[[MissionServer, Message, float], list[Message]]]] = {
+        "MISSION_COUNT": _on_count,
+        "MISSION_ITEM_INT": _on_item,
+        "MISSION_ITEM": _on_item,
+        "MISSION_REQUEST_LIST": _on_request_list,
+        "MISSION_REQUEST_INT": _on_request,
+        "MISSION_REQUEST": _on_request,
+        "MISSION_ACK": _on_ack,
+        "MISSION_CLEAR_ALL": _on_clear_all,
+        "MISSION_SET_CURRENT": _on_set_current,
+    }
+
+    # ----------------------------------------------------------------- helpers
+
+    def _addressed_to_me(self, msg: Message) -> bool:
+        """Broadcast (0) or our ids; messages for other systems are not ours to answer."""
+        ts = getattr(msg, "target_system", 0)
+        tc = getattr(msg, "target_component", 0)
+        return ts in (0, self.system_id) and tc in (0, self.component_id)
+
+    def _accept(self, items: tuple[MissionItem, ...]) -> int:
+        """Whole-mission check, then replace the stored mission only if accepted."""
+        result = ACCEPTED
+        if self.check_mission is not None:
+            try:
+                result = int(self.check_mission(items))
+            except ValueError:
+                result = INVALID
+        if result == ACCEPTED:
+            self._replace(items)
+        return result
+
+    def _replace(self, items: tuple[MissionItem, ...]) -> None:
+        self._mission = items
+        flagged = [it.seq for it in items if it.current]
+        self.current_seq = flagged[0] if flagged else 0
+        self.generation += 1
+        if self.on_mission_changed is not None:
+            self.on_mission_changed(items)
+
+    def _abort(self, up: _Upload, result: int) -> list[Message]:
+        """An error ends the upload (spec: errors are unrecoverable); the old mission stays."""
+        self._upload = None
+        self._last_done = None
+        return [self._ack(up.partner, result, TYPE_MISSION)]
+
+    def _request(self, up: _Upload, now_s: float) -> Message:
+        up.last_request_s = now_s
+        seq = len(up.items)
+        cls = (
+            mavlink.MAVLink_mission_request_message
+            if up.legacy
+            else mavlink.MAVLink_mission_request_int_message
+        )
+        return cls(up.partner[0], up.partner[1], seq, TYPE_MISSION)
+
+    def _ack(self, partner: Partner, result: int, mission_type: int) -> Message:
+        return mavlink.MAVLink_mission_ack_message(partner[0], partner[1], result, mission_type)
+
+    @staticmethod
+    def _text(severity: int, text: str) -> Message:
+        return mavlink.MAVLink_statustext_message(severity, text.encode("ascii", "replace")[:50])
+
+
+def _partner(msg: Message) -> Partner:
+    return (int(msg.get_srcSystem()), int(msg.get_srcComponent()))

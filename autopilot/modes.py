@@ -1,0 +1,106 @@
+"""Arming and flight modes: what reference the controller follows, and when it must not integrate.
+
+Pure and clock-free: every method takes the time ``t_s`` the runner gives it.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+
+import numpy as np
+
+from autopilot.trajectory.base import Trajectory
+from heli_sitl.state import POS, VEL, FloatArray
+
+LANDED_ALT_M = 0.05
+LANDED_SPEED_M_S = 0.2
+
+
+class Mode(enum.Enum):
+    IDLE = "IDLE"  # on the ground, waiting
+    AUTO = "AUTO"  # following a trajectory (mission or uploaded trajectory)
+    HOLD = "HOLD"  # holding a position
+    GUIDED = "GUIDED"  # following streamed setpoints (offboard)
+    LAND = "LAND"
+    RTL = "RTL"
+
+
+@dataclass
+class FlightStatus:
+    armed: bool
+    mode: Mode
+    landed: bool
+    trajectory_t_s: float | None  # time along the active trajectory
+
+
+def landed(x: FloatArray) -> bool:
+    return bool(x[POS][2] < LANDED_ALT_M and np.linalg.norm(x[VEL]) < LANDED_SPEED_M_S)
+
+
+def hold_reference(pos_nwu_m: FloatArray) -> FloatArray:
+    ref = np.zeros(9)
+    ref[0:3] = pos_nwu_m
+    return ref
+
+
+class Flight:
+    """The vehicle's flight state machine (arming, mode, active trajectory)."""
+
+    def __init__(self) -> None:
+        self.armed = False
+        self.mode = Mode.IDLE
+        self.trajectory: Trajectory | None = None
+        self.t0_s = 0.0
+        self.hold_pos: FloatArray = np.zeros(3)
+        self.was_landed = True
+
+    # -- transitions -----------------------------------------------------------------
+    def arm(self) -> tuple[bool, str]:
+        if self.armed:
+            return True, "already armed"
+        if self.trajectory is None and self.mode is not Mode.GUIDED:
+            return False, "no trajectory or mission loaded"
+        self.armed = True
+        return True, "armed"
+
+    def disarm(self, x: FloatArray, force: bool = False) -> tuple[bool, str]:
+        if not force and not landed(x):
+            return False, "refused: airborne (land first)"
+        self.armed = False
+        self.mode = Mode.IDLE
+        return True, "disarmed"
+
+    def start(self, trajectory: Trajectory, t_s: float) -> None:
+        """Follow ``trajectory`` from its time 0 at ``t_s``."""
+        self.trajectory = trajectory
+        self.t0_s = t_s
+        self.mode = Mode.AUTO
+
+    def hold(self, x: FloatArray) -> None:
+        self.hold_pos = x[POS].copy()
+        self.mode = Mode.HOLD
+
+    # -- per tick --------------------------------------------------------------------
+    def reference(self, t_s: float, x: FloatArray) -> FloatArray | None:
+        """The reference for this tick, or None when the rotor must be idle (disarmed)."""
+        if not self.armed:
+            return None
+        if self.mode is Mode.AUTO and self.trajectory is not None:
+            tau = t_s - self.t0_s
+            if tau <= self.trajectory.duration_s:
+                return self.trajectory.sample(np.array([tau]))[0]
+            end = self.trajectory.sample(np.array([self.trajectory.duration_s]))[0]
+            self.hold_pos = end[0:3].copy()
+            self.mode = Mode.HOLD
+        if self.mode is Mode.IDLE:
+            self.hold(x)
+        return hold_reference(self.hold_pos)
+
+    def hold_integrators(self, x: FloatArray, ref: FloatArray) -> bool:
+        """On the ground with the command at or below it, integrating would only wind up."""
+        return landed(x) and ref[2] <= LANDED_ALT_M
+
+    def status(self, t_s: float, x: FloatArray) -> FlightStatus:
+        tau = t_s - self.t0_s if self.mode is Mode.AUTO else None
+        return FlightStatus(self.armed, self.mode, landed(x), tau)

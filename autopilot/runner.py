@@ -1,0 +1,225 @@
+"""The fixed-rate loop: the only code in the autopilot that reads a clock.
+
+``lockstep``: each plant state is answered by exactly one command computed at the state's
+simulation time (a re-sent state gets the same answer again). ``realtime``: ticks on the
+monotonic clock with deadline scheduling (deadline k = start + k * period, so no drift),
+using the newest state; it measures wake-up lateness, overruns and stale states.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from autopilot.links.mavlink_sim import SimLink
+from autopilot.metrics import FlightRecord
+from autopilot.modes import Flight
+from autopilot.tlc.controller import D_PHI_C, D_PSI_C, D_SAT_MASK, D_THETA_C, OK, TLController
+from heli_sitl.sim_protocol import StateSample
+from heli_sitl.state import N_PITCH, FloatArray
+
+log = logging.getLogger("autopilot.runner")
+LOCKSTEP_SPIN_S = 0.001  # poll this long before sleeping (see MavlinkUdp.wait)
+
+# (t_s, x, ref or None, pitches, flight) -> None: telemetry, logging, GCS services
+TickHook = Callable[[float, FloatArray, FloatArray | None, FloatArray, Flight], None]
+
+
+@dataclass(frozen=True)
+class RunnerConfig:
+    mode: str = "lockstep"
+    rate_hz: float = 100.0
+    duration_s: float | None = None  # stop after this much flight time
+    stale_timeout_s: float = 0.5  # plant silent after this long without a state
+    skip_after_periods: int = 2  # realtime: more than this many periods late -> skip ticks
+
+
+@dataclass
+class LoopStats:
+    ticks: int = 0
+    lateness_s: list[float] = field(default_factory=list)
+    overruns: int = 0  # a tick that started a whole period or more after its deadline
+    skipped_ticks: int = 0
+    stale_ticks: int = 0  # no new state since the previous tick (realtime)
+    plant_stale_events: int = 0
+    plant_stale: bool = False
+    bad_outputs: int = 0
+
+    def summary(self) -> dict[str, Any]:
+        lat = np.array(self.lateness_s) if self.lateness_s else np.zeros(1)
+        return {
+            "ticks": self.ticks,
+            "jitter_p50_ms": float(np.percentile(lat, 50) * 1e3),
+            "jitter_p99_ms": float(np.percentile(lat, 99) * 1e3),
+            "jitter_max_ms": float(lat.max() * 1e3),
+            "overruns": self.overruns,
+            "skipped_ticks": self.skipped_ticks,
+            "stale_ticks": self.stale_ticks,
+            "plant_stale_events": self.plant_stale_events,
+            "bad_outputs": self.bad_outputs,
+        }
+
+
+class Recorder:
+    """The flight as the controller saw it, one row per tick, for run.csv and summary.json."""
+
+    def __init__(self) -> None:
+        self.rows: list[tuple[float, FloatArray, FloatArray, FloatArray, float, float, float, bool]] = []
+
+    def add(self, t: float, x: FloatArray, ref: FloatArray, u: FloatArray, diag: FloatArray) -> None:
+        self.rows.append(
+            (t, x.copy(), ref.copy(), u.copy(), diag[D_PSI_C], diag[D_PHI_C], diag[D_THETA_C],
+             diag[D_SAT_MASK] != 0)
+        )  # fmt: skip
+
+    def record(self, wall_s: float, extra: dict[str, Any]) -> FlightRecord:
+        r = self.rows
+        return FlightRecord(
+            t_s=np.array([v[0] for v in r]),
+            x=np.array([v[1] for v in r]).reshape(-1, 12),
+            ref=np.array([v[2] for v in r]).reshape(-1, 9),
+            pitches=np.array([v[3] for v in r]).reshape(-1, N_PITCH),
+            psi_cmd=np.array([v[4] for v in r]),
+            att_cmd=np.array([(v[5], v[6]) for v in r]).reshape(-1, 2),
+            saturated=np.array([v[7] for v in r], dtype=bool),
+            wall_s=wall_s,
+            extra=extra,
+        )
+
+
+class Runner:
+    def __init__(
+        self,
+        ctrl: TLController,
+        flight: Flight,
+        sim: SimLink,
+        cfg: RunnerConfig,
+        hooks: list[TickHook] | None = None,
+        recorder: Recorder | None = None,
+    ) -> None:
+        self.ctrl = ctrl
+        self.flight = flight
+        self.sim = sim
+        self.cfg = cfg
+        self.hooks = hooks or []
+        self.recorder = recorder
+        self.stats = LoopStats()
+        self.u = np.zeros(N_PITCH)
+        self.wall_s = 0.0
+        self._between: list[Callable[[], None]] = []
+
+    def between_ticks(self, fn: Callable[[], None]) -> None:
+        """Run ``fn`` before the next tick (e.g. apply a parameter change)."""
+        self._between.append(fn)
+
+    def tick(self, t_s: float, x: FloatArray) -> FloatArray:
+        while self._between:
+            self._between.pop(0)()
+        ref = self.flight.reference(t_s, x)
+        if ref is None:  # disarmed: rotor idle at zero pitch, nothing integrates
+            self.ctrl.reset()
+            self.u = np.zeros(N_PITCH)
+        else:
+            hold = self.flight.hold_integrators(x, ref)
+            u = self.ctrl.update(t_s, x, ref, hold_integrators=hold)
+            if self.ctrl.status != OK:
+                self.stats.bad_outputs += 1
+            self.u = u
+            if self.recorder is not None:
+                self.recorder.add(t_s, x, ref, u, self.ctrl.diag)
+        self.stats.ticks += 1
+        for hook in self.hooks:
+            hook(t_s, x, ref, self.u, self.flight)
+        return self.u
+
+    def _done(self, t_s: float) -> bool:
+        """Past the end: the tick at t = duration itself is flown, as in-process."""
+        d = self.cfg.duration_s
+        return d is not None and t_s > d + 1e-9
+
+    def _stale(self, stale: bool) -> None:
+        if stale and not self.stats.plant_stale:
+            self.stats.plant_stale_events += 1
+            log.warning("plant silent for %.2f s: holding the last command", self.cfg.stale_timeout_s)
+        self.stats.plant_stale = stale
+
+    def run(self, stop: threading.Event) -> LoopStats:
+        wall0 = time.perf_counter()
+        if self.cfg.mode == "lockstep":
+            self._run_lockstep(stop)
+        else:
+            self._run_realtime(stop)
+        self.wall_s = time.perf_counter() - wall0
+        return self.stats
+
+    def _run_lockstep(self, stop: threading.Event) -> None:
+        last_t_us = -1
+        last_state = time.monotonic()
+        while not stop.is_set():
+            s = self.sim.latest_state(0.05, spin_s=LOCKSTEP_SPIN_S)
+            now = time.monotonic()
+            if s is None:
+                self._stale(now - last_state > self.cfg.stale_timeout_s)
+                continue
+            last_state = now
+            self._stale(False)
+            if s.t_us == last_t_us:  # re-sent by the plant: our answer was lost, send it again
+                self.sim.send_pitches(s.t_us, self.u, self.flight.armed)
+                continue
+            t_s = s.t_us / 1e6
+            if self._done(t_s):
+                break
+            u = self.tick(t_s, s.x)
+            self.sim.send_pitches(s.t_us, u, self.flight.armed)
+            last_t_us = s.t_us
+
+    def _run_realtime(self, stop: threading.Event) -> None:
+        period = 1.0 / self.cfg.rate_hz
+        latest: StateSample | None = None
+        latest_at = 0.0
+        start = time.monotonic()
+        k = 0
+        while not stop.is_set():
+            deadline = start + k * period
+            delay = deadline - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+            wake = time.monotonic()
+            late = wake - deadline
+            if late > self.cfg.skip_after_periods * period:
+                skip = int(late / period)
+                self.stats.skipped_ticks += skip
+                self.stats.overruns += 1
+                k += skip
+                continue
+            if late >= period:
+                self.stats.overruns += 1
+            s = self.sim.latest_state(0.0)
+            if s is not None and (latest is None or s.t_us > latest.t_us):
+                latest, latest_at = s, wake
+            elif latest is not None:
+                self.stats.stale_ticks += 1
+            if latest is None:  # the plant has not spoken yet: wait for it, clock not started
+                start = time.monotonic()
+                self.sim.latest_state(0.01)  # keep the socket drained
+                s = self.sim.latest_state(0.0)
+                if s is not None:
+                    latest, latest_at = s, time.monotonic()
+                    start = latest_at
+                    k = 0
+                continue
+            self.stats.lateness_s.append(late)
+            self._stale(wake - latest_at > self.cfg.stale_timeout_s)
+            t_s = k * period
+            if self._done(t_s):
+                break
+            if not self.stats.plant_stale:
+                self.u = self.tick(t_s, latest.x)
+            self.sim.send_pitches(latest.t_us, self.u, self.flight.armed)
+            k += 1

@@ -1,0 +1,33 @@
+"""Telemetry messages built from the autopilot's view (state, reference, pitches), in NED/FRD."""
+
+from __future__ import annotations
+
+from heli_sitl import frames, servo_map
+from heli_sitl.mavlink_link import Message, mavlink2
+from heli_sitl.sim_protocol import state_messages
+from heli_sitl.state import FloatArray
+
+# POSITION_TARGET_LOCAL_NED type_mask: position, velocity and acceleration used; yaw, yaw rate not
+TYPE_MASK_PVA = (
+    mavlink2.POSITION_TARGET_TYPEMASK_YAW_IGNORE | mavlink2.POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE
+)
+
+
+def attitude_and_position(t_us: int, x: FloatArray) -> list[Message]:
+    """ATTITUDE and LOCAL_POSITION_NED (the same encoding the plant publishes)."""
+    return state_messages(t_us, x)[1:]
+
+
+def position_target(t_us: int, ref: FloatArray) -> Message:
+    pos = frames.nwu_to_ned(ref[0:3])
+    vel = frames.nwu_to_ned(ref[3:6])
+    acc = frames.nwu_to_ned(ref[6:9])
+    vals = [v if v == v else 0.0 for v in (*pos, *vel, *acc)]  # NaN (unknown) -> 0
+    return mavlink2.MAVLink_position_target_local_ned_message(
+        t_us // 1000, mavlink2.MAV_FRAME_LOCAL_NED, TYPE_MASK_PVA, *vals, 0.0, 0.0
+    )
+
+
+def servo_output(t_us: int, pitches_rad: FloatArray, limits: FloatArray) -> Message:
+    pwm = [int(p) for p in servo_map.to_pwm_us(pitches_rad, limits)] + [0] * 4
+    return mavlink2.MAVLink_servo_output_raw_message(t_us & 0xFFFFFFFF, 0, *pwm)

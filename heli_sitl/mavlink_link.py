@@ -1,0 +1,223 @@
+"""A small MAVLink 2 endpoint over UDP on loopback, with pymavlink's codec and no global state.
+
+pymavlink's ``mavutil`` keeps module-level state and hides the socket; this class keeps one
+socket and one ``MAVLink`` codec object, parses each datagram on its own (a truncated or
+corrupted datagram cannot poison the next one), counts what it drops, and closes cleanly.
+"""
+
+from __future__ import annotations
+
+import errno
+import math
+import os
+import select
+import socket
+import struct
+import time
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import TracebackType
+from typing import Any, BinaryIO
+
+os.environ.setdefault("MAVLINK20", "1")
+from pymavlink.dialects.v20 import common as mavlink2  # noqa: E402
+
+Address = tuple[str, int]
+MAVLink = mavlink2.MAVLink
+Message = mavlink2.MAVLink_message
+LOOPBACK = "127.0.0.1"
+
+
+class PortBusyError(OSError):
+    """The UDP port is already bound by another process."""
+
+
+@dataclass
+class LinkStats:
+    rx_datagrams: int = 0
+    rx_messages: int = 0
+    rx_bad: int = 0  # undecodable bytes, wrong CRC, truncated
+    rx_foreign: int = 0  # wrong system id
+    rx_unsigned: int = 0  # refused by signing
+    tx_messages: int = 0
+    tx_errors: int = 0
+    by_type: dict[str, int] = field(default_factory=dict)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {k: v for k, v in self.__dict__.items() if k != "by_type"}
+
+
+def is_loopback(host: str) -> bool:
+    try:
+        infos = socket.getaddrinfo(host, None)
+    except socket.gaierror:
+        return False
+    import ipaddress
+
+    return all(ipaddress.ip_address(i[4][0]).is_loopback for i in infos)
+
+
+class MavlinkUdp:
+    """One UDP socket speaking MAVLink 2.
+
+    ``local`` is bound; datagrams go to ``remote`` (fixed) or, when ``remote`` is None, to
+    every peer heard from (a vehicle answering ground stations). Only loopback addresses are
+    accepted: this bench never sends off the machine.
+    """
+
+    def __init__(
+        self,
+        local: Address,
+        remote: Address | None = None,
+        *,
+        system_id: int = 1,
+        component_id: int = 1,
+        accept_system: int | None = None,
+        rcvbuf_bytes: int = 4 << 20,
+    ) -> None:
+        for host in [local[0]] + ([remote[0]] if remote else []):
+            if not is_loopback(host):
+                raise ValueError(f"{host}: only loopback addresses are allowed")
+        self.remote = remote
+        self.peers: list[Address] = [remote] if remote else []
+        self.accept_system = accept_system
+        self.stats = LinkStats()
+        self.mav = MAVLink(None, srcSystem=system_id, srcComponent=component_id)
+        self.mav.robust_parsing = True
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, rcvbuf_bytes)
+        try:
+            self.sock.bind(local)
+        except OSError as exc:
+            self.sock.close()
+            if exc.errno == errno.EADDRINUSE:
+                raise PortBusyError(exc.errno, f"UDP {local[0]}:{local[1]} is busy") from exc
+            raise
+        self.sock.setblocking(False)
+        self.local = self.sock.getsockname()
+
+    # -- context manager -------------------------------------------------------------
+    def __enter__(self) -> MavlinkUdp:
+        return self
+
+    def __exit__(
+        self, et: type[BaseException] | None, ev: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.close()
+
+    def close(self) -> None:
+        self.sock.close()
+
+    # -- sending -----------------------------------------------------------------------
+    def pack(self, msg: Message) -> bytes:
+        return bytes(msg.pack(self.mav))
+
+    def send(self, *msgs: Message, to: Address | None = None) -> None:
+        """Pack ``msgs`` into one datagram for ``to`` (default: the remote or every peer)."""
+        data = b"".join(self.pack(m) for m in msgs)
+        self.send_bytes(data, to)
+        self.stats.tx_messages += len(msgs)
+
+    def send_bytes(self, data: bytes, to: Address | None = None) -> None:
+        targets = [to] if to else self.peers
+        for addr in targets:
+            try:
+                self.sock.sendto(data, addr)
+            except OSError:
+                # e.g. ECONNREFUSED from a peer that went away, or a full buffer: the
+                # datagram is lost as UDP would lose it; the link layer above times out.
+                self.stats.tx_errors += 1
+
+    # -- receiving ---------------------------------------------------------------------
+    def wait(self, timeout_s: float, spin_s: float = 0.0) -> bool:
+        """Wait until a datagram is queued. ``spin_s`` first polls without sleeping: in
+        lockstep the answer comes within ~100 us, and a sleeping vCPU takes longer than
+        that to wake up, so a short spin doubles the lockstep rate."""
+        if spin_s > 0.0:
+            end = time.perf_counter() + min(spin_s, timeout_s)
+            while time.perf_counter() < end:
+                r, _, _ = select.select([self.sock], [], [], 0.0)
+                if r:
+                    return True
+        r, _, _ = select.select([self.sock], [], [], max(0.0, timeout_s))
+        return bool(r)
+
+    def recv(self, timeout_s: float = 0.0, spin_s: float = 0.0) -> list[tuple[Message, Address]]:
+        """Every valid message already queued (waiting up to ``timeout_s`` for the first)."""
+        out: list[tuple[Message, Address]] = []
+        if timeout_s > 0 and not self.wait(timeout_s, spin_s):
+            return out
+        while True:
+            try:
+                data, addr = self.sock.recvfrom(65535)
+            except (BlockingIOError, InterruptedError):
+                return out
+            except OSError:
+                self.stats.rx_bad += 1
+                continue
+            self.stats.rx_datagrams += 1
+            if self.remote is None and addr not in self.peers:
+                self.peers.append(addr)
+            for msg in self._parse(data):
+                out.append((msg, addr))
+
+    def _parse(self, data: bytes) -> list[Message]:
+        # Each datagram stands alone: forget any partial bytes a bad datagram left behind.
+        self.mav.buf = bytearray()
+        self.mav.buf_index = 0
+        self.mav.expected_length = mavlink2.HEADER_LEN_V1 + 2
+        try:
+            msgs = self.mav.parse_buffer(data) or []
+        except Exception:  # pymavlink raises various errors on garbage even when robust
+            self.stats.rx_bad += 1
+            return []
+        good: list[Message] = []
+        for m in msgs:
+            name = m.get_type()
+            if name == "BAD_DATA" or name == "UNKNOWN" or not _finite_fields(m):
+                self.stats.rx_bad += 1
+                continue
+            if self.accept_system is not None and m.get_srcSystem() != self.accept_system:
+                self.stats.rx_foreign += 1
+                continue
+            self.stats.rx_messages += 1
+            self.stats.by_type[name] = self.stats.by_type.get(name, 0) + 1
+            good.append(m)
+        return good
+
+
+def _finite_fields(m: Message) -> bool:
+    for name in m.get_fieldnames():
+        v = getattr(m, name, None)
+        if isinstance(v, float) and not math.isfinite(v):
+            return False
+        if isinstance(v, (list, tuple)):
+            for e in v:
+                if isinstance(e, float) and not math.isfinite(e):
+                    return False
+    return True
+
+
+class TlogWriter:
+    """pymavlink telemetry log: each record is a big-endian uint64 unix time [us] + the packet."""
+
+    def __init__(self, path: Path, system_id: int = 1, component_id: int = 1) -> None:
+        self.fh: BinaryIO = path.open("wb")
+        self.mav = MAVLink(None, srcSystem=system_id, srcComponent=component_id)
+
+    def write(self, t_unix_us: int, msgs: Iterable[Message]) -> None:
+        for m in msgs:
+            buf = m.get_msgbuf()
+            if buf is None or m.get_srcSystem() is None:
+                buf = m.pack(self.mav)
+            self.fh.write(struct.pack(">Q", t_unix_us) + bytes(buf))
+
+    def close(self) -> None:
+        self.fh.close()
+
+    def __enter__(self) -> TlogWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

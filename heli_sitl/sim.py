@@ -1,0 +1,161 @@
+"""The plant process: owns the 6-DOF model and steps it, lockstep or on the wall clock.
+
+Lockstep (as PX4's): the plant publishes the state at sim time t and advances one period
+only when it holds the command answering that state (HIL_ACTUATOR_CONTROLS with
+``time_usec == t``). If none comes it re-sends the state every ``resend_s`` (UDP may drop)
+and flags the autopilot silent after ``timeout_s``. Real time: the plant steps every
+``1/rate`` seconds of wall clock, applies the newest command and holds it otherwise.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+from heli_sitl.mavlink_link import MavlinkUdp
+from heli_sitl.plant import Plant
+from heli_sitl.servo_map import limits_array
+from heli_sitl.sim_protocol import decode_command, period_us, state_messages
+
+log = logging.getLogger("heli_sitl.sim")
+LOCKSTEP_SPIN_S = 0.001  # poll this long before sleeping (see MavlinkUdp.wait)
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    mode: str = "lockstep"  # or "realtime"
+    rate_hz: float = 100.0  # lockstep: the control rate; realtime: the physics rate
+    duration_s: float | None = None  # None: until stopped
+    timeout_s: float = 1.0  # autopilot silent after this long without a command
+    resend_s: float = 0.2  # lockstep: re-send the state after this long without an answer
+
+
+@dataclass
+class SimStats:
+    steps: int = 0
+    commands: int = 0
+    stale_commands: int = 0  # time stamp not the current step's (lockstep) or older (realtime)
+    bad_commands: int = 0  # NaN, out of range
+    resent_states: int = 0
+    silent_events: int = 0
+    autopilot_silent: bool = False
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+class PlantServer:
+    def __init__(self, plant: Plant, link: MavlinkUdp, cfg: SimConfig) -> None:
+        self.plant = plant
+        self.link = link
+        self.cfg = cfg
+        self.limits = limits_array(plant.airframe.limits.as_tuple())
+        self.stats = SimStats()
+        self.period_us = period_us(cfg.rate_hz)
+        self.t_us = 0
+        self._last_cmd_us = -1
+
+    def _publish(self) -> None:
+        self.link.send(*state_messages(self.t_us, self.plant.x))
+
+    def _end_reached(self) -> bool:
+        """Stepped past the end (the state at t = duration is published and answered)."""
+        d = self.cfg.duration_s
+        return d is not None and self.t_us > round(d * 1e6)
+
+    def _mark_silent(self, silent: bool) -> None:
+        if silent and not self.stats.autopilot_silent:
+            self.stats.silent_events += 1
+            log.warning("autopilot silent for %.2f s: holding the last command", self.cfg.timeout_s)
+        elif not silent and self.stats.autopilot_silent:
+            log.info("autopilot back")
+        self.stats.autopilot_silent = silent
+
+    def _commands(self) -> list[tuple[int, Any]]:
+        out = []
+        for msg, _ in self.link.recv():
+            if msg.get_type() != "HIL_ACTUATOR_CONTROLS":
+                continue
+            cmd = decode_command(msg, self.limits)
+            if cmd is None:
+                self.stats.bad_commands += 1
+                continue
+            out.append(cmd)
+        return out
+
+    def run(self, stop: threading.Event) -> SimStats:
+        if self.cfg.mode == "lockstep":
+            self._run_lockstep(stop)
+        else:
+            self._run_realtime(stop)
+        return self.stats
+
+    def _run_lockstep(self, stop: threading.Event) -> None:
+        dt = self.period_us / 1e6
+        self._publish()
+        sent_at = last_cmd = time.monotonic()
+        while not stop.is_set() and not self._end_reached():
+            self.link.wait(min(self.cfg.resend_s, 0.05), spin_s=LOCKSTEP_SPIN_S)
+            applied = False
+            for t_us, u in self._commands():
+                if t_us != self.t_us:
+                    self.stats.stale_commands += 1
+                    continue
+                self.stats.commands += 1
+                if not self.plant.set_pitches(u):
+                    self.stats.bad_commands += 1
+                applied = True
+            now = time.monotonic()
+            if applied:
+                last_cmd = now
+                self._mark_silent(False)
+                self.plant.step(dt)
+                self.stats.steps += 1
+                self.t_us += self.period_us
+                self._publish()
+                sent_at = now
+                continue
+            if now - last_cmd > self.cfg.timeout_s:
+                self._mark_silent(True)
+            if now - sent_at > self.cfg.resend_s:
+                self._publish()
+                self.stats.resent_states += 1
+                sent_at = now
+        self._publish()
+
+    def _run_realtime(self, stop: threading.Event) -> None:
+        dt = self.period_us / 1e6
+        # The clock starts with the first command, so a vehicle in the air does not fall
+        # while the autopilot is starting; until then the state is published at 20 Hz.
+        while not stop.is_set():
+            cmds = self._commands()
+            if cmds:
+                t_us, u = cmds[-1]
+                self._last_cmd_us = t_us
+                self.plant.set_pitches(u)
+                break
+            self._publish()
+            self.link.wait(0.05)
+        start = time.monotonic()
+        last_cmd = start
+        k = 0
+        while not stop.is_set() and not self._end_reached():
+            for t_us, u in self._commands():
+                if t_us < self._last_cmd_us:
+                    self.stats.stale_commands += 1
+                    continue
+                self._last_cmd_us = t_us
+                self.stats.commands += 1
+                if not self.plant.set_pitches(u):
+                    self.stats.bad_commands += 1
+                last_cmd = time.monotonic()
+            self._mark_silent(time.monotonic() - last_cmd > self.cfg.timeout_s)
+            self.plant.step(dt)
+            self.stats.steps += 1
+            self.t_us += self.period_us
+            self._publish()
+            k += 1
+            delay = start + k * dt - time.monotonic()  # deadline scheduling: no drift
+            if delay > 0:
+                stop.wait(delay)

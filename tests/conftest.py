@@ -1,0 +1,107 @@
+"""Shared fixtures: the X-Cell airframe, the paper gains and a converged hover equilibrium.
+
+The closed-loop helpers fly the controller kernel and the plant through
+:func:`autopilot.closed_loop._run_ticks`, the same compiled loop ``simulate`` uses.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+from hypothesis import settings
+
+from autopilot.closed_loop import _run_ticks
+from autopilot.tlc.controller import N_DIAG, N_REF, TLCConstants, TLController
+from autopilot.tlc.gains import Gains
+from heli_sitl.params import Airframe, PlantConstants
+from heli_sitl.plant import Plant
+from heli_sitl.state import N_PITCH, N_STATE, PSI, Z_U, FloatArray
+
+# The first call of a compiled function loads (or compiles) it: no per-example deadline.
+settings.register_profile("heli", deadline=None)
+settings.load_profile("heli")
+
+RATE_HZ = 100.0
+HOVER_ALT_M = 50.0  # far from the ground plane (contact would level the attitude)
+HOVER_PSI_RAD = 0.3
+SETTLE_S = 400.0  # the slowest closed-loop mode (loop 1) decays as exp(-0.13 t)
+
+
+@pytest.fixture(scope="session")
+def airframe() -> Airframe:
+    return Airframe.load()
+
+
+@pytest.fixture(scope="session")
+def consts(airframe: Airframe) -> PlantConstants:
+    return airframe.constants()
+
+
+@pytest.fixture(scope="session")
+def gains() -> Gains:
+    return Gains.load()
+
+
+@dataclass
+class Flight:
+    x: FloatArray  # (n+1, 12) state at each tick
+    u: FloatArray  # (n+1, 4) pitches commanded at each tick
+    diag: FloatArray  # (n+1, N_DIAG)
+    t: FloatArray
+
+
+def fly(
+    k: TLCConstants,
+    ctrl_state: FloatArray,
+    plant: Plant,
+    x0: FloatArray,
+    refs: FloatArray,
+) -> Flight:
+    """Closed loop over len(refs) ticks from ``x0``; ``ctrl_state`` is updated in place.
+
+    ``refs`` is (n+1, 9); a single (9,) row is held constant for ``n`` ticks if given
+    as (n+1, 9) by the caller (see :func:`hover_refs`).
+    """
+    n = refs.shape[0] - 1
+    t = np.arange(n + 1) * k.dt_s
+    xs = np.empty((n + 1, N_STATE))
+    us = np.empty((n + 1, N_PITCH))
+    diags = np.empty((n + 1, N_DIAG))
+    held = np.zeros(N_PITCH)
+    _run_ticks(
+        k, ctrl_state, plant.constants, plant.lo, plant.hi, held, np.asarray(x0, dtype=float),
+        refs, t, 0, n + 1, n, plant.substeps, xs, us, diags,
+    )  # fmt: skip
+    return Flight(xs, us, diags, t)
+
+
+def hover_refs(pos: FloatArray, seconds: float, rate_hz: float = RATE_HZ) -> FloatArray:
+    ref = np.zeros(N_REF)
+    ref[0:3] = pos
+    n = round(seconds * rate_hz)
+    return np.tile(ref, (n + 1, 1))
+
+
+@dataclass
+class HoverEquilibrium:
+    ctrl: TLController  # its .constants and .state are the equilibrium's
+    plant: Plant
+    x: FloatArray  # plant state at the equilibrium
+    u: FloatArray  # pitches held there
+    ref: FloatArray  # (9,) the constant hover reference
+
+
+@pytest.fixture(scope="session")
+def hover_eq(airframe: Airframe, gains: Gains) -> HoverEquilibrium:
+    """Fly a constant hover reference for SETTLE_S seconds from a level start; the final
+    plant and controller states are the closed loop's hover equilibrium."""
+    ctrl = TLController(airframe, gains, RATE_HZ, "pseudo")
+    x0 = np.zeros(N_STATE)
+    x0[Z_U] = HOVER_ALT_M - 1.0
+    x0[PSI] = HOVER_PSI_RAD
+    plant = Plant(airframe, x0)
+    pos = np.array([0.0, 0.0, HOVER_ALT_M])
+    f = fly(ctrl.constants, ctrl.state, plant, x0, hover_refs(pos, SETTLE_S))
+    return HoverEquilibrium(ctrl, plant, f.x[-1].copy(), f.u[-1].copy(), hover_refs(pos, 0.0)[0])
