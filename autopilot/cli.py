@@ -12,10 +12,15 @@ import time
 from pathlib import Path
 from types import FrameType
 
+import numpy as np
+
 from autopilot.flight_log import write_flight_tlog
+from autopilot.geo import GeoPoint
+from autopilot.links.mavlink_gcs import GcsConfig, GcsService
 from autopilot.links.mavlink_sim import SimLink
 from autopilot.modes import Flight
-from autopilot.runner import Recorder, Runner, RunnerConfig
+from autopilot.params_table import ParamTable
+from autopilot.runner import Recorder, Runner, RunnerConfig, TickHook
 from autopilot.scenario import Scenario
 from autopilot.tlc.controller import TLController
 from heli_sitl.config import ConfigError
@@ -39,6 +44,16 @@ def build_parser() -> argparse.ArgumentParser:
         "--autostart", action="store_true", help="arm and fly the scenario trajectory at once"
     )
     p.add_argument("--out", default=None, help="write run.csv, summary.json, flight.tlog here")
+    g = p.add_argument_group("GCS link (ground stations on 14550, API clients on 14540)")
+    g.add_argument("--no-gcs", action="store_true", help="no ground-station link")
+    g.add_argument("--gcs-port", type=int, default=14550)
+    g.add_argument("--api-port", type=int, default=14540)
+    g.add_argument("--local-gcs-port", type=int, default=18570, help="our end of the GCS link")
+    g.add_argument("--local-api-port", type=int, default=14580, help="our end of the API link")
+    g.add_argument("--home", default="47.397742,8.545594,488.0",
+                   help="home latitude,longitude [deg],altitude AMSL [m]")
+    g.add_argument("--signing-key", default=None,
+                   help="file with a 32-byte MAVLink 2 signing key (raw or 64 hex digits)")
     p.add_argument("-v", "--verbose", action="store_true")
     return p
 
@@ -66,6 +81,42 @@ def main(argv: list[str] | None = None) -> int:
         return 3
 
 
+def read_signing_key(path: str) -> bytes:
+    raw = Path(path).read_bytes().strip()
+    try:
+        key = bytes.fromhex(raw.decode()) if len(raw) == 64 else raw
+    except ValueError as exc:
+        raise ConfigError(f"{path}: signing key: not 64 hex digits") from exc
+    if len(key) != 32:
+        raise ConfigError(f"{path}: signing key: expected 32 bytes (or 64 hex digits), got {len(raw)}")
+    return key
+
+
+def parse_home(text: str) -> GeoPoint:
+    try:
+        lat, lon, alt = (float(v) for v in text.split(","))
+        return GeoPoint(lat, lon, alt)
+    except ValueError as exc:
+        raise ConfigError(f"--home {text!r}: expected lat,lon,alt ({exc})") from exc
+
+
+def apply_params(ctrl: TLController, table: ParamTable) -> None:
+    """Between two control steps: new gains and pitch limits (integrals and filters kept)."""
+    ctrl.set_gains(table.gains())
+    ctrl.set_limits(table.pitch_limits())
+
+
+def make_gcs(args: argparse.Namespace, sc: Scenario, ctrl: TLController, limits: np.ndarray) -> GcsService:
+    home = parse_home(args.home)
+    cfg = GcsConfig(
+        gcs_port=args.gcs_port, api_port=args.api_port, local_gcs_port=args.local_gcs_port,
+        local_api_port=args.local_api_port, home=home,
+        signing_key=read_signing_key(args.signing_key) if args.signing_key else None,
+    )  # fmt: skip
+    table = ParamTable(sc.gains, sc.airframe.limits, ctrl.rate_hz, home=home)
+    return GcsService(cfg, table, lambda _t: None, limits)
+
+
 def run(args: argparse.Namespace, stop: threading.Event) -> int:
     sc = Scenario.load(args.scenario)
     rate = args.rate_hz or sc.run.rate_hz
@@ -82,16 +133,27 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
     out = Path(args.out) if args.out else None
     recorder = Recorder() if out else None
     t0_unix_us = int(time.time() * 1e6)
-    with SimLink((LOOPBACK, args.port), (LOOPBACK, args.plant_port), limits) as sim:
-        runner = Runner(ctrl, flight, sim, cfg, [], recorder)
-        stats = runner.run(stop)
-        link = sim.udp.stats.as_dict()
-        link["out_of_order"] = sim.assembler.out_of_order
+    gcs = None if args.no_gcs else make_gcs(args, sc, ctrl, limits)
+    hooks: list[TickHook] = [] if gcs is None else [gcs]
+    try:
+        with SimLink((LOOPBACK, args.port), (LOOPBACK, args.plant_port), limits) as sim:
+            runner = Runner(ctrl, flight, sim, cfg, hooks, recorder)
+            if gcs is not None:
+                gcs.apply_params = lambda table: runner.between_ticks(
+                    lambda: apply_params(ctrl, table)
+                )
+            stats = runner.run(stop)
+            link = sim.udp.stats.as_dict()
+            link["out_of_order"] = sim.assembler.out_of_order
+    finally:
+        if gcs is not None:
+            gcs.close()
     if out and recorder is not None:
         out.mkdir(parents=True, exist_ok=True)
         record = recorder.record(runner.wall_s, {
             "mode": args.mode, "rate_hz": rate, "feedforward": ctrl.feedforward.value,
             "loop": stats.summary(), "sim_link": link,
+            "gcs_link": gcs.stats() if gcs is not None else None,
         })  # fmt: skip
         record.write_csv(out / "run.csv")
         write_flight_tlog(out / "flight.tlog", record, limits, t0_unix_us)

@@ -18,7 +18,16 @@ import numpy as np
 
 from autopilot.metrics import FlightRecord
 from autopilot.scenario import Scenario
-from autopilot.tlc.controller import D_PHI_C, D_PSI_C, D_SAT_MASK, D_THETA_C, N_DIAG, TLCConstants, TLController, tlc_kernel
+from autopilot.tlc.controller import (
+    D_PHI_C,
+    D_PSI_C,
+    D_SAT_MASK,
+    D_THETA_C,
+    N_DIAG,
+    TLCConstants,
+    TLController,
+    tlc_kernel,
+)
 from heli_sitl._jit import njit
 from heli_sitl.params import PlantConstants
 from heli_sitl.plant import Plant, accept_pitches, plant_step

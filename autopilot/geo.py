@@ -64,9 +64,7 @@ def _radii_m(lat_deg: float) -> tuple[float, float]:
 
 def _check_home(home: GeoPoint) -> None:
     if abs(home.lat_deg) > MAX_HOME_ABS_LAT_DEG:
-        raise ValueError(
-            f"home latitude {home.lat_deg} deg is too close to a pole for the flat-earth map"
-        )
+        raise ValueError(f"home latitude {home.lat_deg} deg is too close to a pole for the flat-earth map")
 
 
 def _wrap_dlon_deg(dlon_deg: float) -> float:

@@ -13,8 +13,9 @@ import numpy as np
 from heli_sitl.state import EULER, PHI, POS, PSI, THETA, FloatArray
 
 CSV_HEADER = (
-    "t,x,y,z,phi,theta,psi,x_cmd,y_cmd,z_cmd,psi_cmd,theta_m,theta_t,eps,eta".split(",")
-)
+    "t", "x", "y", "z", "phi", "theta", "psi",
+    "x_cmd", "y_cmd", "z_cmd", "psi_cmd", "theta_m", "theta_t", "eps", "eta",
+)  # fmt: skip
 PITCH_KEYS = ("theta_m", "theta_t", "eps", "eta")
 
 

@@ -63,6 +63,7 @@ pymavlink 2.4.50's common dialect has no ``opaque_id`` fields, so plan ids are n
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
@@ -180,13 +181,14 @@ class ItemError(ValueError):
         self.result = result
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class MissionItem:
     """One mission item in MISSION_ITEM_INT encoding (what is stored and downloaded).
 
     ``x``/``y`` are int32 as on the wire: degE7 in global frames, metres * 1e4 in local
     frames, raw values otherwise. ``param1..4`` and ``z`` are rounded to float32 on
-    construction, so an item equals itself after a trip through MAVLink.
+    construction, so an item equals itself after a trip through MAVLink. Equality treats
+    NaN params as equal (NaN is a legitimate value: "unchanged yaw", "land here").
     """
 
     seq: int
@@ -212,6 +214,19 @@ class MissionItem:
                 raise ValueError(f"{name} must be an int32, got {v!r}")
         for name in ("param1", "param2", "param3", "param4", "z"):
             object.__setattr__(self, name, _f32(getattr(self, name)))
+
+    def _key(self) -> tuple[object, ...]:
+        return tuple(
+            "nan" if isinstance(v, float) and math.isnan(v) else v for v in dataclasses.astuple(self)
+        )
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, MissionItem):
+            return NotImplemented
+        return self._key() == other._key()
+
+    def __hash__(self) -> int:
+        return hash(self._key())
 
     @classmethod
     def from_message(cls, msg: Message) -> MissionItem:
@@ -239,9 +254,7 @@ class MissionItem:
             mission_type=int(getattr(msg, "mission_type", TYPE_MISSION)),
         )
 
-    def to_message(
-        self, target_system: int, target_component: int, current: bool | None = None
-    ) -> Message:
+    def to_message(self, target_system: int, target_component: int, current: bool | None = None) -> Message:
         """This item as a MISSION_ITEM_INT to ``target_system``/``target_component``."""
         return mavlink.MAVLink_mission_item_int_message(
             target_system,
@@ -398,9 +411,7 @@ def _check_position(
     return ACCEPTED
 
 
-def check_item(
-    item: MissionItem, home: GeoPoint | None, limits: ItemLimits = DEFAULT_LIMITS
-) -> int:
+def check_item(item: MissionItem, home: GeoPoint | None, limits: ItemLimits = DEFAULT_LIMITS) -> int:
     """Validate one item -> MAV_MISSION_ACCEPTED or the MAV_MISSION_RESULT error code.
 
     Order: command, frame, params 1-4, x, y, z (the first failure is reported). Params a
@@ -542,9 +553,7 @@ class MissionServer:
 
     def load(self, items: Sequence[MissionItem]) -> None:
         """Replace the stored mission directly (e.g. from a file at start-up), renumbered."""
-        self._replace(
-            tuple(replace(it, seq=i, mission_type=TYPE_MISSION) for i, it in enumerate(items))
-        )
+        self._replace(tuple(replace(it, seq=i, mission_type=TYPE_MISSION) for i, it in enumerate(items)))
 
     # ----------------------------------------------------------------- input
 
@@ -560,7 +569,8 @@ class MissionServer:
         """Timeouts: re-request a missing item, abandon a dead upload, drop stale snapshots."""
         out: list[Message] = []
         up = self._upload
-        if up is not None and now_s - up.last_request_s >= self.item_timeout_s:
+        # 1 us slack: a caller ticking every 50 ms must not miss 250 ms by float rounding.
+        if up is not None and now_s - up.last_request_s >= self.item_timeout_s - 1e-6:
             if up.retries >= self.max_retries:
                 # Give up; the previous mission stays (atomic upload). Tell the GCS, as
                 # ArduPilot does, in case it is still there.
@@ -588,20 +598,14 @@ class MissionServer:
         """The flight logic reached item ``seq``: MISSION_ITEM_REACHED to broadcast."""
         return [mavlink.MAVLink_mission_item_reached_message(seq)]
 
-    def mission_current_message(
-        self, mission_state: int | None = None, mission_mode: int = 0
-    ) -> Message:
+    def mission_current_message(self, mission_state: int | None = None, mission_mode: int = 0) -> Message:
         """MISSION_CURRENT for the telemetry stream (spec: total = UINT16_MAX if no mission)."""
         total = len(self._mission) if self._mission else UINT16_MAX
         if mission_state is None:
             mission_state = (
-                mavlink.MISSION_STATE_NOT_STARTED
-                if self._mission
-                else mavlink.MISSION_STATE_NO_MISSION
+                mavlink.MISSION_STATE_NOT_STARTED if self._mission else mavlink.MISSION_STATE_NO_MISSION
             )
-        return mavlink.MAVLink_mission_current_message(
-            self.current_seq, total, mission_state, mission_mode
-        )
+        return mavlink.MAVLink_mission_current_message(self.current_seq, total, mission_state, mission_mode)
 
     # ----------------------------------------------------------------- handlers
 

@@ -26,6 +26,9 @@ class Mode(enum.Enum):
     RTL = "RTL"
 
 
+FOLLOWING = (Mode.AUTO, Mode.LAND, Mode.RTL)  # modes that fly the active trajectory
+
+
 @dataclass
 class FlightStatus:
     armed: bool
@@ -53,7 +56,7 @@ class Flight:
         self.trajectory: Trajectory | None = None
         self.t0_s = 0.0
         self.hold_pos: FloatArray = np.zeros(3)
-        self.was_landed = True
+        self.guided_ref: FloatArray | None = None  # offboard setpoint (NaN where not given)
 
     # -- transitions -----------------------------------------------------------------
     def arm(self) -> tuple[bool, str]:
@@ -86,13 +89,19 @@ class Flight:
         """The reference for this tick, or None when the rotor must be idle (disarmed)."""
         if not self.armed:
             return None
-        if self.mode is Mode.AUTO and self.trajectory is not None:
+        if self.mode in FOLLOWING and self.trajectory is not None:
             tau = t_s - self.t0_s
             if tau <= self.trajectory.duration_s:
-                return self.trajectory.sample(np.array([tau]))[0]
+                row: FloatArray = self.trajectory.sample(np.array([tau]))[0]
+                return row
             end = self.trajectory.sample(np.array([self.trajectory.duration_s]))[0]
             self.hold_pos = end[0:3].copy()
-            self.mode = Mode.HOLD
+            if self.mode is not Mode.LAND:  # a landing holds on the ground until disarmed
+                self.mode = Mode.HOLD
+        if self.mode is Mode.GUIDED and self.guided_ref is not None:
+            ref = self.guided_ref.copy()
+            ref[3:9] = np.where(np.isnan(ref[3:9]), 0.0, ref[3:9])
+            return ref
         if self.mode is Mode.IDLE:
             self.hold(x)
         return hold_reference(self.hold_pos)
@@ -102,5 +111,5 @@ class Flight:
         return landed(x) and ref[2] <= LANDED_ALT_M
 
     def status(self, t_s: float, x: FloatArray) -> FlightStatus:
-        tau = t_s - self.t0_s if self.mode is Mode.AUTO else None
+        tau = t_s - self.t0_s if self.mode in FOLLOWING else None
         return FlightStatus(self.armed, self.mode, landed(x), tau)

@@ -11,7 +11,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -100,14 +100,14 @@ class Runner:
         flight: Flight,
         sim: SimLink,
         cfg: RunnerConfig,
-        hooks: list[TickHook] | None = None,
+        hooks: Sequence[TickHook] | None = None,
         recorder: Recorder | None = None,
     ) -> None:
         self.ctrl = ctrl
         self.flight = flight
         self.sim = sim
         self.cfg = cfg
-        self.hooks = hooks or []
+        self.hooks = list(hooks or [])
         self.recorder = recorder
         self.stats = LoopStats()
         self.u = np.zeros(N_PITCH)

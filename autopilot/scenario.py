@@ -48,7 +48,9 @@ class Scenario:
                 raise ConfigError(f"{src}: missing table [{key}]")
         extra = set(table) - {"run", "trajectory", "initial_state"}
         if extra:
-            raise ConfigError(f"{src}: unknown table(s) {sorted(extra)}; expected run, trajectory, initial_state")
+            raise ConfigError(
+                f"{src}: unknown table(s) {sorted(extra)}; expected run, trajectory, initial_state"
+            )
         run = build(Run, table["run"], f"{src}: run")
         base = path.parent
         return cls(

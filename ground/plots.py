@@ -9,9 +9,9 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")  # files only; never needs a display
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import numpy.typing as npt  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
+import numpy.typing as npt
 
 Cols = Mapping[str, npt.NDArray[np.float64]]
 FIGURES = ("fig5_path3d.png", "fig6_position.png", "fig7_attitude.png", "fig8_controls.png")

@@ -39,7 +39,7 @@ def _source_hash() -> str:
 
 if not os.environ.get("NUMBA_CACHE_DIR"):
     _base = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache"))
-    numba.config.CACHE_DIR = str(_base / "heli-tlc-sitl" / f"numba-{_source_hash()}")
+    setattr(numba.config, "CACHE_DIR", str(_base / "heli-tlc-sitl" / f"numba-{_source_hash()}"))  # noqa: B010
 
 
 def njit(fn: F) -> F:

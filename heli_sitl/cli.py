@@ -43,7 +43,7 @@ def _simulate(args: argparse.Namespace) -> int:
     summary = record.write_summary(out / "summary.json")
     figs = plot_figures(record.columns(), out, title=f"{scenario.run.name}, {record.extra['feedforward']}")
     rms = summary["rms_pos_err_m"]
-    print(f"RMS 3-D position error: " + ", ".join(f"[{k}] s {v:.4f} m" for k, v in rms.items()))
+    print("RMS 3-D position error: " + ", ".join(f"[{k}] s {v:.4f} m" for k, v in rms.items()))
     print(
         f"max error in [40, 45] s: {summary['max_pos_err_40_45_m']:.3f} m; "
         f"saturated ticks: {summary['saturated_ticks']}; "

@@ -111,10 +111,10 @@ def _convert(tp: Any, value: Any, where: str, meta: Mapping[str, Any]) -> Any:
             _convert(a, v, f"{where}[{i}]", meta) for i, (a, v) in enumerate(zip(args, value, strict=True))
         )
     if origin in (typing.Union, types.UnionType):
-        args = [a for a in typing.get_args(tp) if a is not type(None)]
+        members = [a for a in typing.get_args(tp) if a is not type(None)]
         if value is None:
             return None
-        return _convert(args[0], value, where, meta)
+        return _convert(members[0], value, where, meta)
     if tp is float:
         return _number(value, where, meta, integer=False)
     if tp is int:

@@ -18,8 +18,8 @@ from heli_sitl._jit import njit
 from heli_sitl.kinematics import euler_rates, rot_body_to_earth
 from heli_sitl.params import PlantConstants
 from heli_sitl.state import (
-    ETA,
     EPS,
+    ETA,
     N_STATE,
     P_X,
     PHI,

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import TypeAlias
 
 import numpy as np
 
@@ -17,9 +18,10 @@ from heli_sitl.kinematics import wrap_pi
 from heli_sitl.state import EULER, N_STATE, OMEGA, POS, VEL, FloatArray
 
 Vec3 = tuple[float, float, float]
+VecIn: TypeAlias = Sequence[float] | FloatArray  # anything with 3 indexable numbers
 
 
-def flip(v: Sequence[float]) -> Vec3:
+def flip(v: VecIn) -> Vec3:
     """Apply T = diag(1, -1, -1): NWU <-> NED and FLU <-> FRD (self-inverse)."""
     return (float(v[0]), -float(v[1]), -float(v[2]))
 
@@ -30,12 +32,12 @@ flu_to_frd = flip
 frd_to_flu = flip
 
 
-def euler_flu_to_frd(euler_rad: Sequence[float]) -> Vec3:
+def euler_flu_to_frd(euler_rad: VecIn) -> Vec3:
     """(phi, theta, psi) in NWU/FLU -> (roll, pitch, yaw) in NED/FRD, yaw in (-pi, pi]."""
     return (float(euler_rad[0]), -float(euler_rad[1]), wrap_pi(-float(euler_rad[2])))
 
 
-def euler_frd_to_flu(euler_rad: Sequence[float]) -> Vec3:
+def euler_frd_to_flu(euler_rad: VecIn) -> Vec3:
     """(roll, pitch, yaw) in NED/FRD -> (phi, theta, psi) in NWU/FLU, psi in (-pi, pi]."""
     return (float(euler_rad[0]), -float(euler_rad[1]), wrap_pi(-float(euler_rad[2])))
 
@@ -53,7 +55,7 @@ def euler_to_quaternion(roll: float, pitch: float, yaw: float) -> tuple[float, f
     )
 
 
-def quaternion_to_euler(q: Sequence[float]) -> Vec3:
+def quaternion_to_euler(q: VecIn) -> Vec3:
     """Unit quaternion (w, x, y, z) -> ZYX (roll, pitch, yaw)."""
     w, x, y, z = (float(v) for v in q)
     n = math.sqrt(w * w + x * x + y * y + z * z)
@@ -75,10 +77,10 @@ def state_nwu_to_ned(x: FloatArray) -> tuple[Vec3, Vec3, Vec3, Vec3]:
 
 
 def state_ned_to_nwu(
-    pos_ned_m: Sequence[float],
-    vel_frd_m_s: Sequence[float],
-    euler_frd_rad: Sequence[float],
-    omega_frd_rad_s: Sequence[float],
+    pos_ned_m: VecIn,
+    vel_frd_m_s: VecIn,
+    euler_frd_rad: VecIn,
+    omega_frd_rad_s: VecIn,
 ) -> FloatArray:
     """(pos_ned_m, vel_frd_m_s, euler_frd_rad, omega_frd_rad_s) -> plant state array."""
     x = np.empty(N_STATE)

@@ -14,18 +14,20 @@ import select
 import socket
 import struct
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
-from typing import Any, BinaryIO
+from typing import Any, BinaryIO, TypeAlias
 
 os.environ.setdefault("MAVLINK20", "1")
-from pymavlink.dialects.v20 import common as mavlink2  # noqa: E402
+from pymavlink.dialects.v20 import common as mavlink2
+
+__all__ = ["LOOPBACK", "Address", "MavlinkUdp", "Message", "PortBusyError", "TlogWriter", "mavlink2"]
 
 Address = tuple[str, int]
 MAVLink = mavlink2.MAVLink
-Message = mavlink2.MAVLink_message
+Message: TypeAlias = Any  # a pymavlink MAVLink_message (pymavlink ships no type information)
 LOOPBACK = "127.0.0.1"
 
 
@@ -75,6 +77,7 @@ class MavlinkUdp:
         component_id: int = 1,
         accept_system: int | None = None,
         rcvbuf_bytes: int = 4 << 20,
+        drop_nonfinite: bool = True,
     ) -> None:
         for host in [local[0]] + ([remote[0]] if remote else []):
             if not is_loopback(host):
@@ -82,6 +85,9 @@ class MavlinkUdp:
         self.remote = remote
         self.peers: list[Address] = [remote] if remote else []
         self.accept_system = accept_system
+        # The sim link never carries NaN; on the GCS link NaN means "unset" in some fields
+        # (COMMAND_LONG params, MAVSDK), so handlers validate what they use instead.
+        self.drop_nonfinite = drop_nonfinite
         self.stats = LinkStats()
         self.mav = MAVLink(None, srcSystem=system_id, srcComponent=component_id)
         self.mav.robust_parsing = True
@@ -108,6 +114,19 @@ class MavlinkUdp:
 
     def close(self) -> None:
         self.sock.close()
+
+    def setup_signing(self, key: bytes, allow_unsigned: Callable[[int], bool]) -> None:
+        """MAVLink 2 signing: sign what we send; accept unsigned messages only where
+        ``allow_unsigned(msg_id)`` says so (wrongly signed ones never)."""
+        if len(key) != 32:
+            raise ValueError("a MAVLink signing key is 32 bytes")
+        sig = self.mav.signing
+        sig.secret_key = key
+        sig.sign_outgoing = True
+        sig.link_id = 0
+        sig.allow_unsigned_callback = lambda _mav, msg_id: allow_unsigned(msg_id)
+        # 10 us units since 2015-01-01, as pymavlink's mavutil does
+        sig.timestamp = int(max(0.0, time.time() - 1420070400) * 100_000)
 
     # -- sending -----------------------------------------------------------------------
     def pack(self, msg: Message) -> bytes:
@@ -175,7 +194,14 @@ class MavlinkUdp:
         good: list[Message] = []
         for m in msgs:
             name = m.get_type()
-            if name == "BAD_DATA" or name == "UNKNOWN" or not _finite_fields(m):
+            if name == "BAD_DATA":
+                reason = str(getattr(m, "reason", ""))
+                if "ign" in reason:  # "Invalid signature" / unsigned message refused
+                    self.stats.rx_unsigned += 1
+                else:
+                    self.stats.rx_bad += 1
+                continue
+            if name.startswith("UNKNOWN") or (self.drop_nonfinite and not _finite_fields(m)):
                 self.stats.rx_bad += 1
                 continue
             if self.accept_system is not None and m.get_srcSystem() != self.accept_system:
@@ -208,8 +234,8 @@ class TlogWriter:
 
     def write(self, t_unix_us: int, msgs: Iterable[Message]) -> None:
         for m in msgs:
-            buf = m.get_msgbuf()
-            if buf is None or m.get_srcSystem() is None:
+            buf = m.get_msgbuf()  # received messages keep their wire bytes; new ones are empty
+            if not buf:
                 buf = m.pack(self.mav)
             self.fh.write(struct.pack(">Q", t_unix_us) + bytes(buf))
 

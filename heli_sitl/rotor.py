@@ -24,7 +24,7 @@ def thrust_coeff(pitch_rad: float, lift_slope: float, solidity: float) -> float:
 @njit
 def torque_coeff(tc: float, solidity: float, delta: float) -> float:
     """qc = delta/8 + 1.13 |tc|^1.5 sqrt(s/2): profile plus induced torque (always >= 0)."""
-    return delta / 8.0 + 1.13 * abs(tc) ** 1.5 * math.sqrt(solidity / 2.0)
+    return delta / 8.0 + 1.13 * math.pow(abs(tc), 1.5) * math.sqrt(solidity / 2.0)
 
 
 @njit

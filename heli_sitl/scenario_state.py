@@ -6,14 +6,14 @@ The plant reads only its own part of ``configs/scenario_*.toml`` ([run] airframe
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from heli_sitl.config import ConfigError, build, read_toml, spec
 from heli_sitl.params import Airframe
-from heli_sitl.state import State, FloatArray
-from dataclasses import dataclass
+from heli_sitl.state import FloatArray, State
 
 
 @dataclass(frozen=True)

@@ -50,6 +50,7 @@ class Flight:
     u: FloatArray  # (n+1, 4) pitches commanded at each tick
     diag: FloatArray  # (n+1, N_DIAG)
     t: FloatArray
+    x_next: FloatArray  # the state one period after the last tick (pairs with the ctrl state)
 
 
 def fly(
@@ -61,8 +62,8 @@ def fly(
 ) -> Flight:
     """Closed loop over len(refs) ticks from ``x0``; ``ctrl_state`` is updated in place.
 
-    ``refs`` is (n+1, 9); a single (9,) row is held constant for ``n`` ticks if given
-    as (n+1, 9) by the caller (see :func:`hover_refs`).
+    After the call, (``x_next``, ``ctrl_state``) is the closed-loop state one period after
+    the last tick, ready for the next one.
     """
     n = refs.shape[0] - 1
     t = np.arange(n + 1) * k.dt_s
@@ -70,11 +71,11 @@ def fly(
     us = np.empty((n + 1, N_PITCH))
     diags = np.empty((n + 1, N_DIAG))
     held = np.zeros(N_PITCH)
-    _run_ticks(
+    x_next = _run_ticks(
         k, ctrl_state, plant.constants, plant.lo, plant.hi, held, np.asarray(x0, dtype=float),
-        refs, t, 0, n + 1, n, plant.substeps, xs, us, diags,
+        refs, t, 0, n + 1, n + 1, plant.substeps, xs, us, diags,
     )  # fmt: skip
-    return Flight(xs, us, diags, t)
+    return Flight(xs, us, diags, t, x_next)
 
 
 def hover_refs(pos: FloatArray, seconds: float, rate_hz: float = RATE_HZ) -> FloatArray:
@@ -104,4 +105,4 @@ def hover_eq(airframe: Airframe, gains: Gains) -> HoverEquilibrium:
     plant = Plant(airframe, x0)
     pos = np.array([0.0, 0.0, HOVER_ALT_M])
     f = fly(ctrl.constants, ctrl.state, plant, x0, hover_refs(pos, SETTLE_S))
-    return HoverEquilibrium(ctrl, plant, f.x[-1].copy(), f.u[-1].copy(), hover_refs(pos, 0.0)[0])
+    return HoverEquilibrium(ctrl, plant, f.x_next, f.u[-1].copy(), hover_refs(pos, 0.0)[0])

@@ -42,7 +42,9 @@ def skew(w: FloatArray) -> FloatArray:
     return np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
 
 
-def rk4(x: FloatArray, f: FloatArray, q: FloatArray, c: PlantConstants, h: float, n: int) -> FloatArray:
+def rk4(
+    x: FloatArray, f: FloatArray, q: FloatArray, c: PlantConstants, h: float, n: int
+) -> FloatArray:
     """A local classical RK4 over rigid_body (forces and torques held)."""
     out = np.empty((n + 1, x.size))
     out[0] = x
@@ -65,7 +67,7 @@ def random_state(rng: np.random.Generator, rate_scale: float = 1.0) -> FloatArra
     return x
 
 
-# --- the rigid body -----------------------------------------------------------------------------
+# --- the rigid body ------------------------------------------------------------------------------
 
 
 @pytest.mark.parametrize("ixz", [0.0, 0.05, -0.12])
@@ -150,7 +152,7 @@ def test_finite_difference_kinematics(airframe: Airframe, ixz: float, seed: int)
     assert_allclose(he_dot, rt(x) @ q, atol=1e-6)
 
 
-# --- forces -------------------------------------------------------------------------------------
+# --- forces --------------------------------------------------------------------------------------
 
 
 @given(
@@ -216,11 +218,11 @@ def test_free_fall(airframe: Airframe) -> None:
     g = airframe.body.gravity_m_s2
     want = x0[POS] + v_earth0 * t + np.array([0.0, 0.0, -0.5 * g * t * t])
     assert_allclose(plant.x[POS], want, atol=1e-7)
-    assert_allclose(rt(plant.x) @ plant.x[VEL], v_earth0 + [0.0, 0.0, -g * t], atol=1e-7)
+    assert_allclose(rt(plant.x) @ plant.x[VEL], v_earth0 + np.array([0.0, 0.0, -g * t]), atol=1e-7)
     assert plant.x[11] - x0[11] < -1.0  # spun clockwise (from above) by the main rotor torque
 
 
-# --- integrator and plant guards -------------------------------------------------------------------
+# --- integrator and plant guards -----------------------------------------------------------------
 
 
 def test_rk4_is_fourth_order(consts: PlantConstants) -> None:
@@ -237,7 +239,9 @@ def test_plant_clips_and_refuses(airframe: Airframe) -> None:
     plant = Plant(airframe, np.zeros(N_STATE))
     assert plant.set_pitches(np.array([1.0, -1.0, 0.5, -0.5]))
     lim = airframe.limits
-    assert_allclose(plant.u, [lim.theta_m_rad[1], lim.theta_t_rad[0], lim.eps_rad[1], lim.eta_rad[0]])
+    assert_allclose(
+        plant.u, [lim.theta_m_rad[1], lim.theta_t_rad[0], lim.eps_rad[1], lim.eta_rad[0]]
+    )
     held = plant.u.copy()
     assert not plant.set_pitches(np.array([0.1, math.nan, 0.0, 0.0]))
     assert not plant.set_pitches(np.array([0.1, 0.0, math.inf, 0.0]))
@@ -247,7 +251,7 @@ def test_plant_clips_and_refuses(airframe: Airframe) -> None:
         Plant(airframe, np.full(N_STATE, math.nan))
 
 
-# --- hover trim -----------------------------------------------------------------------------------
+# --- hover trim ----------------------------------------------------------------------------------
 
 
 def _trim_residual(v: FloatArray, c: PlantConstants) -> FloatArray:
@@ -259,7 +263,7 @@ def _trim_residual(v: FloatArray, c: PlantConstants) -> FloatArray:
 
 
 def _hover_trim(c: PlantConstants) -> FloatArray:
-    sol, info, ier, msg = fsolve(
+    sol, _info, _ier, msg = fsolve(
         _trim_residual, [0.1, 0.15, 0.0, 0.0, 0.0, 0.0], args=(c,), full_output=True, xtol=1e-13
     )
     assert np.abs(_trim_residual(sol, c)).max() < 1e-10, msg

@@ -43,7 +43,7 @@ def quat_to_matrix(q: tuple[float, float, float, float]) -> np.ndarray:
     )
 
 
-# --- T and the rotation identity ------------------------------------------------------------
+# --- T and the rotation identity -----------------------------------------------------------------
 
 
 @given(vec3)
@@ -79,7 +79,7 @@ def test_T_Rt_T_is_Rt_with_pitch_and_yaw_negated(e: tuple[float, float, float]) 
     assert math.isclose(np.linalg.det(lhs), 1.0, rel_tol=1e-12)
 
 
-# --- Euler angles -------------------------------------------------------------------------------
+# --- Euler angles --------------------------------------------------------------------------------
 
 
 @given(euler)
@@ -133,7 +133,7 @@ def test_wrap_pi_range_and_congruence(a: float) -> None:
     assert abs(k - round(k)) < 1e-9
 
 
-# --- quaternions --------------------------------------------------------------------------------
+# --- quaternions ---------------------------------------------------------------------------------
 
 
 @given(euler)
@@ -153,7 +153,7 @@ def test_quaternion_euler_round_trip(e: tuple[float, float, float]) -> None:
 
 @given(
     st.tuples(*(st.floats(-1.0, 1.0) for _ in range(4))).filter(
-        lambda q: 0.1 < math.sqrt(sum(c * c for c in q))
+        lambda q: math.sqrt(sum(c * c for c in q)) > 0.1
     )
 )
 def test_quaternion_to_euler_to_quaternion(q: tuple[float, float, float, float]) -> None:
@@ -168,7 +168,7 @@ def test_quaternion_to_euler_to_quaternion(q: tuple[float, float, float, float])
     assert_allclose(sign * back, qn, atol=1e-9)
 
 
-# --- whole state ----------------------------------------------------------------------------------
+# --- whole state ---------------------------------------------------------------------------------
 
 
 @settings(max_examples=50)

@@ -158,7 +158,8 @@ class CanServoSender:
         if self._send_frames(frames, "NodeStatus", "node_status_errors", t_s):
             self.stats["node_status_sent"] += 1
         self._errors_since_status = 0
-        nxt = (self._next_status_s or t_s) + self.status_period_s
+        prev = self._next_status_s if self._next_status_s is not None else t_s
+        nxt = prev + self.status_period_s
         # after a gap in time (a paused runner) restart the 1 Hz grid instead of bursting
         self._next_status_s = nxt if nxt > t_s else t_s + self.status_period_s
 

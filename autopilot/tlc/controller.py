@@ -7,6 +7,7 @@ time and must call ``update`` once per control period (zero-order hold on the ou
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 import math
 from typing import NamedTuple
@@ -21,7 +22,7 @@ from autopilot.tlc.loops import a3_matrix, a4_matrix
 from heli_sitl import rotor
 from heli_sitl._jit import njit
 from heli_sitl.kinematics import cross, euler_rate_matrix, rot_body_to_earth, wrap_pi
-from heli_sitl.params import Airframe, PlantConstants
+from heli_sitl.params import Airframe, PitchLimits, PlantConstants
 from heli_sitl.state import EULER, N_PITCH, N_STATE, OMEGA, POS, VEL, FloatArray
 
 # reference vector (earth NWU): commanded position and, where known, its derivatives
@@ -92,7 +93,7 @@ def make_constants(airframe: Airframe, gains: Gains, rate_hz: float, ff: Feedfor
 
 @njit
 def _all_finite(v: FloatArray) -> bool:
-    for i in range(v.shape[0]):
+    for i in range(v.shape[0]):  # noqa: SIM110 (numba compiles no generator inside all())
         if not math.isfinite(v[i]):
             return False
     return True
@@ -260,6 +261,11 @@ class TLController:
         """New gains take effect from the next update; integrals and filters are kept."""
         self.constants = make_constants(self.airframe, gains, self.rate_hz, self.feedforward)
         self.gains = gains
+
+    def set_limits(self, limits: PitchLimits) -> None:
+        """New pitch limits from the next update."""
+        self.airframe = dataclasses.replace(self.airframe, limits=limits)
+        self.constants = make_constants(self.airframe, self.gains, self.rate_hz, self.feedforward)
 
     def update(
         self, t: float, x: FloatArray, ref: FloatArray, *, hold_integrators: bool = False

@@ -12,7 +12,9 @@ A spline through a corner (a jump of velocity, e.g. the end of the paper's climb
 (bit 0 = x north, bit 1 = y west/east, bit 2 = z up/down: the axes are the same in NWU
 and NED): the spline of a marked axis is split there into independent pieces sharing the
 sample, so the corner is kept sharp and the rest stays C2. At a break the derivatives
-are right-continuous (the later piece is used from the break time on).
+are left-continuous (the earlier piece is used up to and including the break time), the
+convention of PaperSpiralCircle (climbing while t <= 40 s), so a decoded spiral gives
+the controller the very same reference on every tick, the break tick included.
 
 Outside [t_first, t_last] the position is held at the end sample with zero velocity and
 acceleration (the controller then brakes to a hover there).
@@ -20,6 +22,7 @@ acceleration (the controller then brakes to a hover there).
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Sequence
 
 import numpy as np
@@ -81,7 +84,7 @@ class SampledTrajectory(Trajectory):
             starts = np.array([t[a] for a in cuts[:-1]])
             splines = [
                 CubicSpline(t[a : b + 1], pos[a : b + 1, axis], bc_type="not-a-knot")
-                for a, b in zip(cuts[:-1], cuts[1:], strict=True)
+                for a, b in itertools.pairwise(cuts)
             ]
             self._pieces.append((starts, splines))
 
@@ -107,7 +110,8 @@ class SampledTrajectory(Trajectory):
         inside = (t >= self._t[0]) & (t <= self._t[-1])
         tc = np.clip(t, self._t[0], self._t[-1])
         for axis, (starts, splines) in enumerate(self._pieces):
-            piece = np.clip(np.searchsorted(starts, tc, side="right") - 1, 0, len(splines) - 1)
+            # side="left": a time equal to a break belongs to the piece that ends there.
+            piece = np.clip(np.searchsorted(starts, tc, side="left") - 1, 0, len(splines) - 1)
             for k, spline in enumerate(splines):
                 sel = piece == k
                 if not np.any(sel):

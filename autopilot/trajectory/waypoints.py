@@ -93,9 +93,7 @@ class _Leg:
     seq: int
 
 
-def _leg_profile(
-    length_m: float, speed_cap_m_s: float, max_acc_m_s2: float
-) -> tuple[float, float, float]:
+def _leg_profile(length_m: float, speed_cap_m_s: float, max_acc_m_s2: float) -> tuple[float, float, float]:
     """(V, T_ramp, duration) of the rest-to-rest profile over ``length_m``."""
     if length_m <= 0.0:
         return 0.0, 0.0, 0.0
@@ -216,9 +214,7 @@ class _Builder:
     def hold(self, duration_s: float, seq: int) -> None:
         if duration_s <= 0.0:
             return
-        self.legs.append(
-            _Leg(self.t, duration_s, _vec(self.pos), (0.0, 0.0, 0.0), 0.0, 0.0, 0.0, seq)
-        )
+        self.legs.append(_Leg(self.t, duration_s, _vec(self.pos), (0.0, 0.0, 0.0), 0.0, 0.0, 0.0, seq))
         self.t += duration_s
 
     def reach(self, seq: int) -> None:
@@ -238,7 +234,7 @@ class _Builder:
             raise MissionBuildError(item.seq, ms.INVALID_PARAM1, f"speed type {item.param1}")
         if speed == ms.SPEED_DEFAULT:
             value = getattr(self.defaults, field)
-        elif math.isfinite(speed) and 0.0 < speed:
+        elif math.isfinite(speed) and speed > 0.0:
             value = min(speed, self.limits.max_speed_m_s)
         else:
             raise MissionBuildError(item.seq, ms.INVALID_PARAM2, f"speed {speed}")
@@ -256,7 +252,7 @@ def _target_nwu(item: ms.MissionItem, home: GeoPoint | None, here_nwu_m: FloatAr
         p = ms.item_position_ned_m(item, home)
     except ValueError as exc:
         raise MissionBuildError(item.seq, ms.UNSUPPORTED_FRAME, str(exc)) from exc
-    here_ned = flip(here_nwu_m)
+    here_ned = flip(_vec(here_nwu_m))
     north, east = p.north_east_m if p.north_east_m is not None else (here_ned[0], here_ned[1])
     down = p.down_m if p.down_m is not None else here_ned[2]
     return np.array(flip((north, east, down)))

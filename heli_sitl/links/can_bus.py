@@ -193,5 +193,5 @@ class RateLimitedLog:
         if last is not None and abs(now_s - last) < self.interval_s:
             return False
         self._last_s[kind] = now_s
-        self.logger.log(level, msg, *args)
+        self.logger.log(level, msg, *args, stacklevel=2)  # report the caller's line
         return True

@@ -16,7 +16,10 @@ logged, at most once a second per kind; the previous pitches stay held):
 * The four servos move together: a transfer is applied only if it carries exactly one
   ``COMMAND_TYPE_POSITION`` command for each of the four configured actuator ids.
   Commands for other actuator ids are normal on a shared bus (other actuators); they are
-  ignored and counted as ``unknown_actuator``.
+  ignored and counted as ``unknown_actuator``. Four commands are 16 bytes, never a single
+  frame, so every applied command has passed the transfer CRC (single-frame DroneCAN
+  transfers carry none; a corrupted end flag can make one out of a first frame, and that
+  can never hold four commands).
 * A non-finite value refuses the whole transfer (as ``heli_sitl.plant.accept_pitches``).
 * Limits: a value beyond a servo limit by more than one float16 step at that limit
   (~6e-4 rad at 0.6 rad) refuses the whole transfer (``out_of_limits``): the sender's
@@ -143,6 +146,10 @@ class CanServoEndpoint:
         self._now_s = 0.0
         self._log = RateLimitedLog(log, log_interval_s)
         self._reassembler = Reassembler((ARRAY_COMMAND_DTID, NODE_STATUS_DTID), self._on_drop)
+
+        # load (or compile) the numba gate now: the first command must not stall the
+        # receiver for seconds while frames pile up in the bus's queue
+        accept_pitches(np.zeros(N_PITCH), self.lo, self.hi, np.zeros(N_PITCH))
 
         self._owns_bus = not isinstance(bus, CanBus)
         self.bus = bus if isinstance(bus, CanBus) else open_bus(bus)
@@ -291,8 +298,11 @@ class CanServoEndpoint:
             return
         if np.any((values < self.lo) | (values > self.hi)):
             self.stats["clipped"] += 1
+        first = self.held is None
         self.held = held
         self.last_accept_s = now_s
+        if first:
+            log.info("CAN servo: first command applied, %s: %s", who, self._held_text())
         self.stats["commands_applied"] += 1
 
     def _update_silence(self, now_s: float) -> None:

@@ -385,6 +385,9 @@ class Reassembler:
         if len(frames) > 1:
             # checked here (not only inside dronecan's from_frames) to count it as a CRC fault
             raw = b"".join(bytes(f.bytes[:-1]) for f in frames)
+            if len(raw) < 2:
+                self._drop(DropReason.DECODE, f"{who}: {len(raw)} bytes, shorter than its CRC")
+                return None
             crc_rx = raw[0] | (raw[1] << 8)
             crc = dsdl_common.crc16_from_bytes(raw[2:], initial=dt.base_crc)
             if crc != crc_rx:

@@ -1,0 +1,520 @@
+"""The GCS link: the autopilot as a MAVLink vehicle for ground stations and API clients.
+
+System 1, component 1, MAV_TYPE_HELICOPTER, MAV_AUTOPILOT_GENERIC. Two UDP sockets, as PX4
+SITL: one sends to 127.0.0.1:14550 (ground stations: QGroundControl, MAVProxy), one to
+127.0.0.1:14540 (API clients: MAVSDK); each answers whoever talks to it. It runs as a tick
+hook of the runner, so every handler sees the runner's time ``t_s`` and never a clock.
+
+Custom modes use PX4's numbering (custom_mode = main << 16 | sub << 24; DO_SET_MODE
+param2 = main, param3 = sub) so that MAVSDK's and QGroundControl's mode requests work;
+the vehicle still reports MAV_AUTOPILOT_GENERIC, not PX4.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from autopilot import telemetry
+from autopilot.flight_log import heartbeat
+from autopilot.geo import GeoPoint, nwu_to_geo
+from autopilot.mission import MissionItem, MissionServer
+from autopilot.modes import Flight, Mode, landed
+from autopilot.params_table import ParamTable
+from autopilot.trajectory.waypoints import FlightLimits, WaypointTrajectory
+from autopilot.trajectory_codec import check_mission, mission_to_trajectory
+from heli_sitl.kinematics import rot_body_to_earth
+from heli_sitl.mavlink_link import LOOPBACK, Address, MavlinkUdp, Message, mavlink2
+from heli_sitl.state import EULER, POS, VEL, FloatArray
+
+log = logging.getLogger("autopilot.gcs")
+m2 = mavlink2
+
+# PX4 custom main/sub modes (see the module docstring)
+PX4_MAIN_AUTO, PX4_MAIN_OFFBOARD = 4, 6
+PX4_SUB_LOITER, PX4_SUB_MISSION, PX4_SUB_RTL, PX4_SUB_LAND, PX4_SUB_TAKEOFF = 3, 4, 5, 6, 2
+MODE_TO_PX4: dict[Mode, tuple[int, int]] = {
+    Mode.IDLE: (PX4_MAIN_AUTO, PX4_SUB_LOITER),
+    Mode.HOLD: (PX4_MAIN_AUTO, PX4_SUB_LOITER),
+    Mode.AUTO: (PX4_MAIN_AUTO, PX4_SUB_MISSION),
+    Mode.RTL: (PX4_MAIN_AUTO, PX4_SUB_RTL),
+    Mode.LAND: (PX4_MAIN_AUTO, PX4_SUB_LAND),
+    Mode.GUIDED: (PX4_MAIN_OFFBOARD, 0),
+}
+
+# Messages accepted unsigned when signing is on: they change nothing on the vehicle.
+UNSIGNED_OK = frozenset({
+    m2.MAVLINK_MSG_ID_HEARTBEAT, m2.MAVLINK_MSG_ID_PARAM_REQUEST_LIST,
+    m2.MAVLINK_MSG_ID_PARAM_REQUEST_READ, m2.MAVLINK_MSG_ID_MISSION_REQUEST_LIST,
+    m2.MAVLINK_MSG_ID_TIMESYNC, m2.MAVLINK_MSG_ID_SYSTEM_TIME,
+    m2.MAVLINK_MSG_ID_REQUEST_DATA_STREAM,
+})  # fmt: skip
+
+DEFAULT_RATES_HZ: dict[int, float] = {
+    m2.MAVLINK_MSG_ID_HEARTBEAT: 1.0,
+    m2.MAVLINK_MSG_ID_SYS_STATUS: 1.0,
+    m2.MAVLINK_MSG_ID_ATTITUDE: 20.0,
+    m2.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 20.0,
+    m2.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 10.0,
+    m2.MAVLINK_MSG_ID_GPS_RAW_INT: 5.0,
+    m2.MAVLINK_MSG_ID_HOME_POSITION: 0.5,
+    m2.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 1.0,
+    m2.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED: 10.0,
+    m2.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW: 10.0,
+    m2.MAVLINK_MSG_ID_MISSION_CURRENT: 1.0,
+}
+
+CAPABILITIES = (
+    m2.MAV_PROTOCOL_CAPABILITY_MISSION_INT
+    | m2.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT
+    | m2.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
+    | m2.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+    | m2.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
+    | m2.MAV_PROTOCOL_CAPABILITY_MAVLINK2
+    | m2.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
+)
+FORCE_DISARM_MAGIC = 21196
+DEFAULT_TAKEOFF_ALT_M = 2.5
+
+
+@dataclass(frozen=True)
+class GcsConfig:
+    host: str = LOOPBACK
+    gcs_port: int = 14550  # ground stations listen here
+    api_port: int = 14540  # API clients (MAVSDK) listen here
+    local_gcs_port: int = 18570  # our end of each link (PX4 SITL's numbers)
+    local_api_port: int = 14580
+    home: GeoPoint = field(default_factory=lambda: GeoPoint(47.397742, 8.545594, 488.0))
+    signing_key: bytes | None = None
+    offboard_timeout_s: float = 1.0
+    rates_hz: dict[int, float] = field(default_factory=lambda: dict(DEFAULT_RATES_HZ))
+
+
+@dataclass
+class Offboard:
+    ref_nwu: FloatArray  # pos, vel, acc (NaN where not given)
+    received_t_s: float
+
+
+class GcsService:
+    """Owns the two GCS sockets; call it once per control tick (runner hook)."""
+
+    def __init__(
+        self,
+        cfg: GcsConfig,
+        params: ParamTable,
+        apply_params: Callable[[ParamTable], None],
+        limits: FloatArray,
+        flight_limits: FlightLimits | None = None,
+    ) -> None:
+        self.cfg = cfg
+        self.params = params
+        self.apply_params = apply_params
+        self.limits = limits
+        self.flight_limits = flight_limits or FlightLimits()
+        self.links = [
+            MavlinkUdp((cfg.host, cfg.local_gcs_port), (cfg.host, cfg.gcs_port), drop_nonfinite=False),
+            MavlinkUdp((cfg.host, cfg.local_api_port), (cfg.host, cfg.api_port), drop_nonfinite=False),
+        ]
+        if cfg.signing_key is not None:
+            for link in self.links:
+                link.setup_signing(cfg.signing_key, lambda msg_id: msg_id in UNSIGNED_OK)
+        self.missions = MissionServer(
+            home=cfg.home,
+            check_mission=self._check_mission,
+        )
+        self.intervals_s = {k: 1.0 / v for k, v in cfg.rates_hz.items() if v > 0}
+        self.next_due: dict[int, float] = {}
+        self.offboard: Offboard | None = None
+        self.texts: list[tuple[int, str]] = []
+        self.refused = 0
+        self._t = 0.0
+        self._x: FloatArray = np.zeros(12)
+        self._ref: FloatArray | None = None
+        self._u: FloatArray = np.zeros(4)
+        self._flight: Flight | None = None
+        self._prev_tau: float | None = None
+
+    # -- lifecycle ------------------------------------------------------------------------
+    def close(self) -> None:
+        for link in self.links:
+            link.close()
+
+    def stats(self) -> dict[str, Any]:
+        return {f"gcs{i}": link.stats.as_dict() for i, link in enumerate(self.links)}
+
+    # -- the tick hook --------------------------------------------------------------------
+    def __call__(
+        self, t_s: float, x: FloatArray, ref: FloatArray | None, u: FloatArray, flight: Flight
+    ) -> None:
+        self._t, self._x, self._ref, self._u, self._flight = t_s, x, ref, u, flight
+        for link in self.links:
+            for msg, addr in link.recv():
+                try:
+                    self._dispatch(link, addr, msg)
+                except Exception:  # a handler bug must not take the vehicle down
+                    log.exception("error handling %s", msg.get_type())
+        self._send_all(self.missions.tick(t_s))
+        self._mission_progress(flight)
+        self._offboard_timeout(flight)
+        self._auto_disarm(flight)
+        self._telemetry()
+
+    # -- sending --------------------------------------------------------------------------
+    def _send_all(self, msgs: list[Message]) -> None:
+        if msgs:
+            for link in self.links:
+                link.send(*msgs)
+
+    def statustext(self, severity: int, text: str) -> None:
+        log.info("%s", text)
+        self._send_all([m2.MAVLink_statustext_message(severity, text[:50].encode())])
+
+    def _telemetry(self) -> None:
+        t = self._t
+        due = []
+        for msg_id, interval in self.intervals_s.items():
+            if t >= self.next_due.get(msg_id, 0.0):
+                self.next_due[msg_id] = t + interval
+                msg = self.build(msg_id)
+                if msg is not None:
+                    due.append(msg)
+        self._send_all(due)
+
+    def build(self, msg_id: int) -> Message | None:
+        """Build one telemetry message from the latest tick, or None if not available."""
+        t_us = int(self._t * 1e6)
+        t_ms = int(self._t * 1e3)
+        x, home, flight = self._x, self.cfg.home, self._flight
+        armed = flight.armed if flight else False
+        if msg_id == m2.MAVLINK_MSG_ID_HEARTBEAT:
+            hb = heartbeat(armed)
+            mode = flight.mode if flight else Mode.IDLE
+            main, sub = MODE_TO_PX4[mode]
+            hb.custom_mode = (main << 16) | (sub << 24)
+            if mode is Mode.AUTO:
+                hb.base_mode |= m2.MAV_MODE_FLAG_AUTO_ENABLED
+            if mode is Mode.GUIDED:
+                hb.base_mode |= m2.MAV_MODE_FLAG_GUIDED_ENABLED
+            return hb
+        if msg_id == m2.MAVLINK_MSG_ID_SYS_STATUS:
+            sensors = (m2.MAV_SYS_STATUS_SENSOR_3D_GYRO | m2.MAV_SYS_STATUS_SENSOR_3D_ACCEL
+                       | m2.MAV_SYS_STATUS_SENSOR_GPS)  # fmt: skip
+            return m2.MAVLink_sys_status_message(
+                sensors, sensors, sensors, 100, -1, -1, -1, 0, 0, 0, 0, 0, 0
+            )
+        if msg_id in (m2.MAVLINK_MSG_ID_ATTITUDE, m2.MAVLINK_MSG_ID_LOCAL_POSITION_NED):
+            att, lpn = telemetry.attitude_and_position(t_us, x)
+            return att if msg_id == m2.MAVLINK_MSG_ID_ATTITUDE else lpn
+        vel_ned = self._vel_ned()
+        geo = nwu_to_geo(home, x[POS].tolist())
+        lat, lon = int(round(geo.lat_deg * 1e7)), int(round(geo.lon_deg * 1e7))
+        heading = math.degrees(-x[EULER][2]) % 360.0  # NWU yaw -> compass heading
+        if msg_id == m2.MAVLINK_MSG_ID_GLOBAL_POSITION_INT:
+            return m2.MAVLink_global_position_int_message(
+                t_ms, lat, lon, int(geo.alt_amsl_m * 1000), int(x[POS][2] * 1000),
+                *(int(round(v * 100)) for v in vel_ned), int(heading * 100) % 36000,
+            )  # fmt: skip
+        if msg_id == m2.MAVLINK_MSG_ID_GPS_RAW_INT:
+            ground = math.hypot(vel_ned[0], vel_ned[1])
+            cog = math.degrees(math.atan2(vel_ned[1], vel_ned[0])) % 360.0
+            return m2.MAVLink_gps_raw_int_message(
+                t_us, m2.GPS_FIX_TYPE_3D_FIX, lat, lon, int(geo.alt_amsl_m * 1000),
+                80, 120, int(ground * 100), int(cog * 100) % 36000, 14,
+            )  # fmt: skip
+        if msg_id == m2.MAVLINK_MSG_ID_HOME_POSITION:
+            return m2.MAVLink_home_position_message(
+                int(round(home.lat_deg * 1e7)), int(round(home.lon_deg * 1e7)),
+                int(home.alt_amsl_m * 1000), 0.0, 0.0, 0.0, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0,
+                t_us,
+            )  # fmt: skip
+        if msg_id == m2.MAVLINK_MSG_ID_EXTENDED_SYS_STATE:
+            return m2.MAVLink_extended_sys_state_message(
+                m2.MAV_VTOL_STATE_UNDEFINED, self._landed_state()
+            )
+        if msg_id == m2.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED:
+            return telemetry.position_target(t_us, self._ref) if self._ref is not None else None
+        if msg_id == m2.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW:
+            return telemetry.servo_output(t_us, self._u, self.limits)
+        if msg_id == m2.MAVLINK_MSG_ID_MISSION_CURRENT:
+            return self.missions.mission_current_message()
+        if msg_id == m2.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
+            return m2.MAVLink_autopilot_version_message(
+                CAPABILITIES, 0x00010000, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, 1, [0] * 18
+            )
+        if msg_id == m2.MAVLINK_MSG_ID_PROTOCOL_VERSION:
+            return m2.MAVLink_protocol_version_message(200, 100, 200, [0] * 8, [0] * 8)
+        return None
+
+    def _vel_ned(self) -> tuple[float, float, float]:
+        e = self._x[EULER]
+        rt = rot_body_to_earth(e[0], e[1], e[2])
+        v = rt @ self._x[VEL]
+        return (float(v[0]), float(-v[1]), float(-v[2]))
+
+    def _landed_state(self) -> int:
+        f = self._flight
+        state: int = m2.MAV_LANDED_STATE_IN_AIR
+        if f is None or not f.armed or landed(self._x):
+            state = m2.MAV_LANDED_STATE_ON_GROUND
+        elif f.mode is Mode.LAND:
+            state = m2.MAV_LANDED_STATE_LANDING
+        return state
+
+    # -- receiving ------------------------------------------------------------------------
+    def _dispatch(self, link: MavlinkUdp, addr: Address, msg: Message) -> None:
+        kind = msg.get_type()
+        if kind in ("COMMAND_LONG", "COMMAND_INT"):
+            self._on_command(link, addr, msg)
+        elif kind.startswith("PARAM_"):
+            self._on_param(link, addr, msg)
+        elif kind.startswith("MISSION_"):
+            out = self.missions.handle(msg, self._t)
+            if out:
+                link.send(*out, to=addr)
+        elif kind == "SET_POSITION_TARGET_LOCAL_NED":
+            self._on_setpoint(msg)
+        elif kind == "TIMESYNC" and msg.tc1 == 0:
+            link.send(m2.MAVLink_timesync_message(int(self._t * 1e9), msg.ts1), to=addr)
+
+    def _on_param(self, link: MavlinkUdp, addr: Address, msg: Message) -> None:
+        flight = self._flight
+        armed = flight.armed if flight else False
+        before = {s.name: self.params.get(s.name) for s in self.params.specs}
+        out = self.params.handle(msg, armed=armed)
+        changed = any(self.params.get(n) != v for n, v in before.items())
+        if changed:
+            self.apply_params(self.params)
+        if msg.get_type() == "PARAM_SET" and changed:
+            self._send_all(out)  # every GCS learns of a change
+        elif out:
+            link.send(*out, to=addr)
+
+    def _on_setpoint(self, msg: Message) -> None:
+        if msg.coordinate_frame != m2.MAV_FRAME_LOCAL_NED:
+            self.refused += 1
+            return
+        mask = msg.type_mask
+        ref = np.full(9, np.nan)
+        groups = (
+            (0, (msg.x, msg.y, msg.z), m2.POSITION_TARGET_TYPEMASK_X_IGNORE),
+            (3, (msg.vx, msg.vy, msg.vz), m2.POSITION_TARGET_TYPEMASK_VX_IGNORE),
+            (6, (msg.afx, msg.afy, msg.afz), m2.POSITION_TARGET_TYPEMASK_AX_IGNORE),
+        )
+        for off, vals, ignore_bit in groups:
+            if not mask & ignore_bit:
+                if not all(math.isfinite(v) for v in vals):
+                    self.refused += 1
+                    return
+                ref[off : off + 3] = (vals[0], -vals[1], -vals[2])  # NED -> NWU
+        if np.all(np.isnan(ref[0:3])):
+            self.refused += 1  # this vehicle follows positions; velocity-only is not flown
+            return
+        self.offboard = Offboard(ref, self._t)
+
+    # -- commands -------------------------------------------------------------------------
+    def _ack(self, link: MavlinkUdp, addr: Address, msg: Message, result: int) -> None:
+        link.send(m2.MAVLink_command_ack_message(msg.command, result, 0, 0,
+                                                 msg.get_srcSystem(), msg.get_srcComponent()),
+                  to=addr)  # fmt: skip
+
+    def _on_command(self, link: MavlinkUdp, addr: Address, msg: Message) -> None:
+        if msg.target_system not in (0, 1) or msg.target_component not in (0, 1):
+            return
+        p = [msg.param1, msg.param2, msg.param3, msg.param4]
+        if msg.get_type() == "COMMAND_INT":
+            p += [msg.x, msg.y, msg.z]
+        else:
+            p += [msg.param5, msg.param6, msg.param7]
+        cmd = msg.command
+        handler = self._COMMANDS.get(cmd)
+        if handler is None:
+            self._ack(link, addr, msg, m2.MAV_RESULT_UNSUPPORTED)
+            return
+        result, text = handler(self, p, link, addr)
+        if text:
+            self.statustext(
+                m2.MAV_SEVERITY_INFO if result == m2.MAV_RESULT_ACCEPTED else m2.MAV_SEVERITY_WARNING,
+                text,
+            )
+        self._ack(link, addr, msg, result)
+
+    def _flight_or_fail(self) -> Flight:
+        if self._flight is None:
+            raise RuntimeError("no tick yet")
+        return self._flight
+
+    def _cmd_arm(self, p: list[float], link: MavlinkUdp, addr: Address) -> tuple[int, str]:
+        f = self._flight_or_fail()
+        if p[0] == 1.0:
+            has_plan = bool(self.missions.mission) or f.mode is Mode.GUIDED or f.trajectory is not None
+            if not has_plan:
+                return m2.MAV_RESULT_DENIED, "Arming refused: no mission or trajectory"
+            f.armed = True
+            f.hold(self._x)
+            return m2.MAV_RESULT_ACCEPTED, "Armed"
+        if p[0] == 0.0:
+            ok, why = f.disarm(self._x, force=p[1] == FORCE_DISARM_MAGIC)
+            return (m2.MAV_RESULT_ACCEPTED if ok else m2.MAV_RESULT_DENIED), f"Disarm: {why}"
+        return m2.MAV_RESULT_DENIED, "Arm: param1 must be 0 or 1"
+
+    def _start_items(self, items: list[MissionItem], mode: Mode, start_seq: int = 0) -> tuple[int, str]:
+        f = self._flight_or_fail()
+        try:
+            traj = mission_to_trajectory(items, self.cfg.home, self._x[POS].tolist(), self.flight_limits,
+                                         start_seq)  # fmt: skip
+        except ValueError as exc:
+            return m2.MAV_RESULT_DENIED, f"Refused: {exc}"[:50]
+        f.start(traj, self._t)
+        f.mode = mode
+        self._prev_tau = None
+        return m2.MAV_RESULT_ACCEPTED, ""
+
+    def _cmd_mission_start(self, p: list[float], link: MavlinkUdp, addr: Address) -> tuple[int, str]:
+        f = self._flight_or_fail()
+        if not f.armed:
+            return m2.MAV_RESULT_DENIED, "Mission start refused: disarmed"
+        if not self.missions.mission:
+            return m2.MAV_RESULT_DENIED, "Mission start refused: no mission"
+        first = int(p[0]) if math.isfinite(p[0]) and p[0] > 0 else 0
+        self.missions.set_current(first)
+        result, text = self._start_items(list(self.missions.mission), Mode.AUTO, first)
+        return result, text or "Mission started"
+
+    def _local_item(self, command: int, z_up_m: float | None = None) -> MissionItem:
+        """An item at the current position in MAV_FRAME_LOCAL_NED (x, y in 1e-4 m)."""
+        pos = self._x[POS]
+        z = -(pos[2] if z_up_m is None else z_up_m)
+        return MissionItem(0, m2.MAV_FRAME_LOCAL_NED, command, x=int(round(pos[0] * 1e4)),
+                           y=int(round(-pos[1] * 1e4)), z=z)  # fmt: skip
+
+    def _cmd_takeoff(self, p: list[float], link: MavlinkUdp, addr: Address) -> tuple[int, str]:
+        f = self._flight_or_fail()
+        if not f.armed:
+            return m2.MAV_RESULT_DENIED, "Takeoff refused: disarmed"
+        alt = p[6] - self.cfg.home.alt_amsl_m if math.isfinite(p[6]) else DEFAULT_TAKEOFF_ALT_M
+        if not 0.5 <= alt <= 500.0:
+            return m2.MAV_RESULT_DENIED, f"Takeoff refused: altitude {alt:.1f} m"
+        result, text = self._start_items([self._local_item(m2.MAV_CMD_NAV_TAKEOFF, alt)], Mode.AUTO)
+        return result, text or f"Takeoff to {alt:.1f} m"
+
+    def _cmd_land(self, p: list[float], link: MavlinkUdp, addr: Address) -> tuple[int, str]:
+        if not self._flight_or_fail().armed:
+            return m2.MAV_RESULT_DENIED, "Land refused: disarmed"
+        result, text = self._start_items([self._local_item(m2.MAV_CMD_NAV_LAND, 0.0)], Mode.LAND)
+        return result, text or "Landing"
+
+    def _cmd_rtl(self, p: list[float], link: MavlinkUdp, addr: Address) -> tuple[int, str]:
+        if not self._flight_or_fail().armed:
+            return m2.MAV_RESULT_DENIED, "RTL refused: disarmed"
+        item = MissionItem(0, m2.MAV_FRAME_MISSION, m2.MAV_CMD_NAV_RETURN_TO_LAUNCH)
+        result, text = self._start_items([item], Mode.RTL)
+        return result, text or "Returning to launch"
+
+    def _cmd_set_mode(self, p: list[float], link: MavlinkUdp, addr: Address) -> tuple[int, str]:
+        f = self._flight_or_fail()
+        main, sub = int(p[1]) if math.isfinite(p[1]) else -1, int(p[2]) if math.isfinite(p[2]) else 0
+        if main == PX4_MAIN_AUTO and sub == PX4_SUB_MISSION:
+            return self._cmd_mission_start([0.0] * 7, link, addr)
+        if main == PX4_MAIN_AUTO and sub == PX4_SUB_LOITER:
+            f.hold(self._x)
+            return m2.MAV_RESULT_ACCEPTED, "Hold"
+        if main == PX4_MAIN_AUTO and sub == PX4_SUB_RTL:
+            return self._cmd_rtl(p, link, addr)
+        if main == PX4_MAIN_AUTO and sub == PX4_SUB_LAND:
+            return self._cmd_land(p, link, addr)
+        if main == PX4_MAIN_AUTO and sub == PX4_SUB_TAKEOFF:
+            return self._cmd_takeoff([math.nan] * 7, link, addr)
+        if main == PX4_MAIN_OFFBOARD:
+            if self.offboard is None or self._t - self.offboard.received_t_s > self.cfg.offboard_timeout_s:
+                return m2.MAV_RESULT_DENIED, "Offboard refused: no setpoint stream"
+            f.mode = Mode.GUIDED
+            return m2.MAV_RESULT_ACCEPTED, "Offboard"
+        return m2.MAV_RESULT_DENIED, f"Mode {main}/{sub} not supported"
+
+    def _cmd_request_message(self, p: list[float], link: MavlinkUdp, addr: Address) -> tuple[int, str]:
+        msg = self.build(int(p[0])) if math.isfinite(p[0]) else None
+        if msg is None:
+            return m2.MAV_RESULT_DENIED, ""
+        link.send(msg, to=addr)
+        return m2.MAV_RESULT_ACCEPTED, ""
+
+    def _cmd_capabilities(self, p: list[float], link: MavlinkUdp, addr: Address) -> tuple[int, str]:
+        return self._cmd_request_message([float(m2.MAVLINK_MSG_ID_AUTOPILOT_VERSION)] + p[1:], link, addr)
+
+    def _cmd_set_interval(self, p: list[float], link: MavlinkUdp, addr: Address) -> tuple[int, str]:
+        if not (math.isfinite(p[0]) and math.isfinite(p[1])):
+            return m2.MAV_RESULT_DENIED, ""
+        msg_id, interval_us = int(p[0]), p[1]
+        if self.build(msg_id) is None and msg_id not in DEFAULT_RATES_HZ:
+            return m2.MAV_RESULT_DENIED, ""
+        if interval_us == -1:
+            self.intervals_s.pop(msg_id, None)
+        elif interval_us == 0:
+            rate = DEFAULT_RATES_HZ.get(msg_id)
+            if rate:
+                self.intervals_s[msg_id] = 1.0 / rate
+            else:
+                self.intervals_s.pop(msg_id, None)
+        elif interval_us > 0:
+            self.intervals_s[msg_id] = max(interval_us * 1e-6, 0.001)
+        else:
+            return m2.MAV_RESULT_DENIED, ""
+        self.next_due[msg_id] = self._t
+        return m2.MAV_RESULT_ACCEPTED, ""
+
+    _COMMANDS: dict[int, Callable[[GcsService, list[float], MavlinkUdp, Address], tuple[int, str]]] = {
+        m2.MAV_CMD_COMPONENT_ARM_DISARM: _cmd_arm,
+        m2.MAV_CMD_MISSION_START: _cmd_mission_start,
+        m2.MAV_CMD_NAV_TAKEOFF: _cmd_takeoff,
+        m2.MAV_CMD_NAV_LAND: _cmd_land,
+        m2.MAV_CMD_NAV_RETURN_TO_LAUNCH: _cmd_rtl,
+        m2.MAV_CMD_DO_SET_MODE: _cmd_set_mode,
+        m2.MAV_CMD_REQUEST_MESSAGE: _cmd_request_message,
+        m2.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: _cmd_capabilities,
+        m2.MAV_CMD_SET_MESSAGE_INTERVAL: _cmd_set_interval,
+    }
+
+    # -- mission bookkeeping --------------------------------------------------------------
+    def _check_mission(self, items: tuple[MissionItem, ...]) -> int:
+        """A new upload is refused while it cannot be flown; flying one is replaced only
+        by the next explicit start (the running trajectory is kept until then)."""
+        return check_mission(items, self.cfg.home, self.flight_limits)
+
+    def _mission_progress(self, flight: Flight) -> None:
+        traj = flight.trajectory
+        if flight.mode is not Mode.AUTO or not isinstance(traj, WaypointTrajectory):
+            return
+        tau = self._t - flight.t0_s
+        prev = self._prev_tau if self._prev_tau is not None else -1e-9
+        self._prev_tau = tau
+        out: list[Message] = []
+        for seq in traj.reached_between(prev, tau):
+            out += self.missions.item_reached(seq)
+        active = traj.active_seq(tau)
+        if active is not None and active != self.missions.current_seq:
+            out += self.missions.set_current(active)
+        self._send_all(out)
+
+    def _offboard_timeout(self, flight: Flight) -> None:
+        if flight.mode is not Mode.GUIDED:
+            return
+        ob = self.offboard
+        if ob is None or self._t - ob.received_t_s > self.cfg.offboard_timeout_s:
+            flight.hold(self._x)
+            self.offboard = None
+            self.statustext(m2.MAV_SEVERITY_WARNING, "Offboard setpoints lost: holding position")
+            return
+        flight.guided_ref = ob.ref_nwu
+
+    def _auto_disarm(self, flight: Flight) -> None:
+        if flight.armed and flight.mode is Mode.LAND and flight.trajectory is not None:
+            tau = self._t - flight.t0_s
+            if tau > flight.trajectory.duration_s and landed(self._x):
+                flight.disarm(self._x)
+                self.statustext(m2.MAV_SEVERITY_INFO, "Landed: disarmed")

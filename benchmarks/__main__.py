@@ -1,0 +1,70 @@
+"""``python -m benchmarks``: run every registered benchmark and print one aligned table.
+
+Exit status 0 always (the table is a report; the ``ok`` column flags a missed target).
+``python -m benchmarks plant`` runs only the groups whose title contains "plant".
+"""
+
+from __future__ import annotations
+
+import importlib
+import math
+import sys
+import time
+
+from benchmarks import MODULES, REGISTRY, Row
+
+
+def fmt_value(v: float) -> str:
+    if not math.isfinite(v):
+        return str(v)
+    if v == 0.0:
+        return "0"
+    a = abs(v)
+    if a >= 1e5 or a < 1e-3:
+        return f"{v:.3e}"
+    if a >= 100:
+        return f"{v:,.0f}"
+    return f"{v:.4g}"
+
+
+def table(groups: list[tuple[str, list[Row]]]) -> str:
+    header = ("group", "benchmark", "value", "unit", "target", "ok")
+    lines: list[tuple[str, ...]] = []
+    for title, rows in groups:
+        for r in rows:
+            ok = "" if r.ok is None else ("yes" if r.ok else "MISS")
+            lines.append((title, r.name, fmt_value(r.value), r.unit, r.target, ok))
+    widths = [max(len(h), *(len(row[i]) for row in lines)) for i, h in enumerate(header)]
+    right = {2}  # numbers right-aligned
+
+    def render(cells: tuple[str, ...]) -> str:
+        out = [
+            c.rjust(w) if i in right else c.ljust(w)
+            for i, (c, w) in enumerate(zip(cells, widths, strict=True))
+        ]
+        return "| " + " | ".join(out) + " |"
+
+    rules = [("-" * (w + 1) + ":") if i in right else "-" * (w + 2) for i, w in enumerate(widths)]
+    sep = "|" + "|".join(rules) + "|"
+    return "\n".join([render(header), sep, *(render(line) for line in lines)])
+
+
+def main(argv: list[str]) -> int:
+    for mod in MODULES:
+        importlib.import_module(mod)
+    wanted = [a.lower() for a in argv]
+    groups: list[tuple[str, list[Row]]] = []
+    t0 = time.perf_counter()
+    for title, fn in REGISTRY:
+        if wanted and not any(w in title.lower() for w in wanted):
+            continue
+        t1 = time.perf_counter()
+        groups.append((title, fn()))
+        print(f"  {title}: {time.perf_counter() - t1:.1f} s", file=sys.stderr, flush=True)
+    print(table(groups))
+    print(f"\n(total {time.perf_counter() - t0:.1f} s, including numba load/compile)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv[1:]))

@@ -1,0 +1,148 @@
+"""Speed of the control law and the plant, real-time factor of the in-process closed loop,
+and the accuracy of the 10 ms RK4 plant step on the paper scenario.
+
+Every timed call is measured on its own (``perf_counter_ns``) and the median is reported,
+after a warm-up that loads (or compiles) the numba kernels.
+"""
+
+from __future__ import annotations
+
+import gc
+import time
+from collections.abc import Callable
+from functools import cache
+
+import numpy as np
+
+from autopilot.closed_loop import SimOptions, simulate
+from autopilot.metrics import FlightRecord
+from autopilot.scenario import Scenario
+from autopilot.tlc.controller import N_DIAG, TLController, tlc_kernel
+from benchmarks import Row, above, below, bench
+from heli_sitl.plant import Plant, plant_step
+from heli_sitl.state import N_PITCH, POS
+
+SCENARIO = "paper"
+
+
+@cache
+def scenario() -> Scenario:
+    return Scenario.load(SCENARIO)
+
+
+@cache
+def flight(feedforward: str = "pseudo", plant_substeps: int = 1) -> FlightRecord:
+    """One paper flight (run twice: the first loads the kernels, the second is timed)."""
+    opts = SimOptions(feedforward=feedforward, plant_substeps=plant_substeps)
+    simulate(scenario(), opts)
+    return simulate(scenario(), opts)
+
+
+def median_ns(call: Callable[[int], object], n: int) -> float:
+    """Median wall time of ``call(i)`` over i = 0..n-1, in nanoseconds (gc off)."""
+    samples = np.empty(n)
+    clock = time.perf_counter_ns
+    gc_was = gc.isenabled()
+    gc.disable()
+    try:
+        for i in range(n):
+            t0 = clock()
+            call(i)
+            samples[i] = clock() - t0
+    finally:
+        if gc_was:
+            gc.enable()
+    return float(np.median(samples))
+
+
+@bench("control law")
+def bench_tlc_step() -> list[Row]:
+    """TLController.update and the raw kernel along the recorded paper flight (realistic
+    states and references, every tick of the 120 s)."""
+    rec = flight()
+    sc = scenario()
+    n = rec.t_s.size
+    ctrl = TLController(sc.airframe, sc.gains, rec.extra["rate_hz"], rec.extra["feedforward"])
+    ctrl.update(0.0, rec.x[0], rec.ref[0])  # load the kernel
+    ctrl.reset()
+    outs = np.empty((n, N_PITCH))
+
+    def update(i: int) -> None:
+        outs[i] = ctrl.update(rec.t_s[i], rec.x[i], rec.ref[i])
+
+    t_update = median_ns(update, n) / 1e3
+    # replaying the recorded states must reproduce the recorded commands exactly
+    same = bool(np.array_equal(outs, rec.pitches))
+
+    k, st = ctrl.constants, np.zeros_like(ctrl.state)
+    out, diag = np.empty(N_PITCH), np.zeros(N_DIAG)
+
+    def kernel(i: int) -> None:
+        tlc_kernel(k, st, rec.x[i], rec.ref[i], False, out, diag)
+
+    t_kernel = median_ns(kernel, n) / 1e3
+    per_tick = rec.wall_s / (n - 1) * 1e6
+    return [
+        Row("TLC step, TLController.update (median)", t_update, "us", *below(t_update, 50.0)),
+        Row("TLC step, tlc_kernel called from Python", t_kernel, "us", *below(t_kernel, 30.0)),
+        Row("closed-loop tick in the compiled loop", per_tick, "us", *below(per_tick, 20.0)),
+        Row("replayed commands equal the flight's", float(same), "bool", "1", same),
+    ]
+
+
+@bench("plant")
+def bench_plant_step() -> list[Row]:
+    rec = flight()
+    sc = scenario()
+    plant = Plant(sc.airframe, rec.x[6000])
+    plant.set_pitches(rec.pitches[6000])
+    plant.step(0.01)  # load the kernel
+    dt = 1.0 / rec.extra["rate_hz"]
+    x, u, c = rec.x[6000], plant.u.copy(), plant.constants
+
+    def step(i: int) -> None:
+        plant.x = x.copy()
+        plant.step(dt)
+
+    def kernel(i: int) -> None:
+        plant_step(0.0, x, u, c, dt, 1, True)
+
+    n = 20000
+    t_step = median_ns(step, n) / 1e3
+    t_kernel = median_ns(kernel, n) / 1e3
+    return [
+        Row("plant RK4 step, Plant.step (10 ms, 1 sub-step)", t_step, "us", *below(t_step, 50.0)),
+        Row("plant RK4 step, plant_step from Python", t_kernel, "us", *below(t_kernel, 30.0)),
+    ]
+
+
+@bench("in-process closed loop")
+def bench_realtime() -> list[Row]:
+    rows = []
+    for ff in ("pseudo", "exact"):
+        s = flight(ff).summary()
+        rtf = float(s["realtime_factor"])
+        rows.append(Row(f"paper 120 s at 100 Hz, {ff}: real-time factor", rtf, "x", *above(rtf, 100.0)))
+        rows.append(Row(f"paper 120 s at 100 Hz, {ff}: wall time", s["wall_s"] * 1e3, "ms"))
+    return rows
+
+
+@bench("plant integration accuracy")
+def bench_accuracy() -> list[Row]:
+    """The paper scenario (pseudo, 100 Hz) with one 10 ms RK4 step per tick against 40 steps
+    of 0.25 ms: same controller, so the gap is the plant integration error fed back."""
+    coarse, fine = flight("pseudo", 1), flight("pseudo", 40)
+    d = np.linalg.norm(coarse.x[:, POS] - fine.x[:, POS], axis=1)
+    d_max, d_rms = float(d.max()), float(np.sqrt(np.mean(d**2)))
+
+    def rms45(r: FlightRecord) -> float:
+        m = r.window(45.0, 120.0)
+        return float(np.sqrt(np.mean(r.pos_err_m[m] ** 2)))
+
+    gap = abs(rms45(coarse) - rms45(fine))
+    return [
+        Row("position gap 10 ms vs 0.25 ms RK4, max", d_max, "m", *below(d_max, 1e-3)),
+        Row("position gap 10 ms vs 0.25 ms RK4, RMS", d_rms, "m", *below(d_rms, 1e-3)),
+        Row("RMS error [45, 120] s, 10 ms RK4", rms45(coarse), "m", *below(rms45(coarse), 0.05)),
+        Row("RMS error [45, 120] s change, 10 ms vs 0.25 ms", gap, "m", *below(gap, 1e-4)),
+    ]
