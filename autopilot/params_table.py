@@ -266,7 +266,8 @@ class ParamTable:
         v = float(value)
         # Values arrive as float32: one that rounds to the float32 of the current value
         # or of a bound means exactly that (1.2 arrives as 1.2000000477 > 1.2).
-        for exact in (current, s.lo, s.hi):
+        # An open bound is excluded, so nothing snaps to it.
+        for exact in (current, s.hi) if s.lo_open else (current, s.lo, s.hi):
             if math.isfinite(v) and _f32(v) == _f32(exact):
                 v = exact
         if s.param_type == INT32 and not (math.isfinite(v) and v.is_integer()):

@@ -39,6 +39,11 @@ the wire quantisation; :func:`fidelity`, tests/test_trajectory_codec.py):
 The spline's own error at 0.5 s is tiny (pos 7e-7 m, vel 9e-6 m/s, acc 7e-5 m/s^2); the
 0.1 mm x/y quantum, differentiated, dominates and grows as the step shrinks, so steps
 below ~0.5 s make the acceleration feedforward noisier, not better.
+
+Closed loop (autopilot.closed_loop.simulate, paper scenario, 100 Hz): flying the decoded
+0.5 s upload instead of the analytic spiral changes the flown position by at most
+9e-5 m, the attitude by 2.5e-4 rad and the blade pitches by 6e-5 rad with the paper's
+pseudo-differentiator feedforward (9e-5 m / 4.2e-4 rad / 1e-4 rad with exact feedforward).
 """
 
 from __future__ import annotations

@@ -73,7 +73,8 @@ def _run(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     airframe, x0, rate = load_vehicle(args.scenario, on_ground=args.on_ground)
-    cfg = SimConfig(args.mode, args.rate_hz or rate, args.duration_s, args.timeout_s)
+    cfg = SimConfig(args.mode, args.rate_hz or rate, args.duration_s, args.timeout_s,
+                    hold_until_armed=args.hold_until_armed)  # fmt: skip
     plant = Plant(airframe, x0, substeps=args.plant_substeps)
     try:
         link = MavlinkUdp((LOOPBACK, args.port), (LOOPBACK, args.autopilot_port), system_id=1,
@@ -88,9 +89,29 @@ def _run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _up(args: argparse.Namespace) -> int:
+    from heli_sitl.demo import DemoError, UpOptions, serve, terminate_on_sigterm
+
+    terminate_on_sigterm()
+
+    opts = UpOptions(
+        mode=args.mode, rate_hz=args.rate_hz, scenario=args.scenario, in_air=args.in_air,
+        gcs_port=args.gcs_port, api_port=args.api_port, local_gcs_port=args.local_gcs_port,
+        local_api_port=args.local_api_port, signing_key=args.signing_key, out=args.out,
+    )  # fmt: skip
+    try:
+        serve(opts)
+    except DemoError as exc:
+        print(f"heli-sitl up: {exc}", file=sys.stderr)
+        return 1
+    return 0
+
+
 def _demo(args: argparse.Namespace) -> int:
     from ground.plots import plot_figures, read_csv_columns
-    from heli_sitl.demo import DemoError, DemoOptions, run_demo
+    from heli_sitl.demo import DemoError, DemoOptions, run_demo, terminate_on_sigterm
+
+    terminate_on_sigterm()
 
     out = Path(args.out)
     opts = DemoOptions(mode=args.mode, rate_hz=args.rate_hz, scenario=args.scenario, out=out,
@@ -141,8 +162,24 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--port", type=int, default=4560, help="UDP port to bind")
     r.add_argument("--autopilot-port", type=int, default=4561)
     r.add_argument("--timeout-s", type=float, default=1.0, help="autopilot silent after this")
+    r.add_argument("--hold-until-armed", action="store_true",
+                   help="in-air start: do not step until the autopilot arms")
     r.add_argument("-v", "--verbose", action="store_true")
     r.set_defaults(func=_run)
+
+    u = sub.add_parser("up", help="plant + autopilot, disarmed on the ground, serving ground stations")
+    u.add_argument("--mode", choices=("lockstep", "realtime"), default="realtime")
+    u.add_argument("--rate-hz", type=float, default=100.0)
+    u.add_argument("--scenario", default="paper", help="airframe and gains")
+    u.add_argument("--in-air", action="store_true",
+                   help="start at the scenario's initial state, clock held until armed")
+    u.add_argument("--gcs-port", type=int, default=14550)
+    u.add_argument("--api-port", type=int, default=14540)
+    u.add_argument("--local-gcs-port", type=int, default=18570)
+    u.add_argument("--local-api-port", type=int, default=14580)
+    u.add_argument("--signing-key", default=None)
+    u.add_argument("--out", default=None, help="autopilot writes run.csv/summary/tlog here on exit")
+    u.set_defaults(func=_up)
 
     d = sub.add_parser("demo", help="plant + autopilot as processes, fly the scenario")
     d.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep")

@@ -133,7 +133,8 @@ def _convert(tp: Any, value: Any, where: str, meta: Mapping[str, Any]) -> Any:
     raise TypeError(f"unsupported config type {tp!r} at {where}")
 
 
-def _build(cls: type[T], table: Mapping[str, Any], where: str) -> T:
+def _build(cls: type[T], table: Mapping[str, Any], where: str, top: bool = False) -> T:
+    """``where`` is "file" for a whole file (``top``) or "file: table" for a table in it."""
     assert dataclasses.is_dataclass(cls)
     hints = typing.get_type_hints(cls)
     fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
@@ -146,7 +147,7 @@ def _build(cls: type[T], table: Mapping[str, Any], where: str) -> T:
             )
     kwargs: dict[str, Any] = {}
     for name, f in fields.items():
-        key_where = f"{where}.{name}" if not where.endswith(":") else f"{where} {name}"
+        key_where = f"{where}: {name}" if top else f"{where}.{name}"
         if name not in table:
             has_default = (
                 f.default is not dataclasses.MISSING
@@ -165,7 +166,7 @@ def _build(cls: type[T], table: Mapping[str, Any], where: str) -> T:
 
 def build(cls: type[T], table: Mapping[str, Any], source: str) -> T:
     """Build ``cls`` from a parsed table; ``source`` (a file name) prefixes every error."""
-    return _build(cls, table, f"{source}:")
+    return _build(cls, table, source, top=": " not in source)
 
 
 def load(cls: type[T], path: str | Path) -> T:

@@ -6,8 +6,8 @@ non-zero with a one-line reason (busy port, a process died, timeout).
 
 from __future__ import annotations
 
+import ctypes
 import json
-import os
 import signal
 import socket
 import subprocess
@@ -47,6 +47,29 @@ def _cmd(module: str) -> list[str]:
     return [sys.executable, "-m", module]
 
 
+def _die_with_parent() -> None:
+    """Child-side: get SIGTERM if this (the parent) process dies, however it dies (Linux)."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+
+
+def spawn(cmd: list[str]) -> subprocess.Popen[bytes]:
+    """Start a child whose stderr we keep for the failure reason; it dies with us."""
+    return subprocess.Popen(cmd, stderr=subprocess.PIPE, preexec_fn=_die_with_parent)
+
+
+def terminate_on_sigterm() -> None:
+    """Turn SIGTERM into KeyboardInterrupt, so ``finally`` blocks stop the children."""
+
+    def raise_interrupt(signum: int, frame: object) -> None:
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, raise_interrupt)
+
+
 def run_demo(opts: DemoOptions) -> dict[str, object]:
     opts.out.mkdir(parents=True, exist_ok=True)
     pp = opts.plant_port or free_udp_port()
@@ -60,10 +83,9 @@ def run_demo(opts: DemoOptions) -> dict[str, object]:
                                       "--autostart", "--out", str(opts.out),
                                       *opts.extra_autopilot_args]  # fmt: skip
     procs: list[tuple[str, subprocess.Popen[bytes]]] = []
-    env = dict(os.environ)
     try:
         for name, cmd in (("plant", plant_cmd), ("autopilot", ap_cmd)):
-            procs.append((name, subprocess.Popen(cmd, stderr=subprocess.PIPE, env=env)))
+            procs.append((name, spawn(cmd)))
         limit = opts.timeout_s or (600.0 if opts.mode == "lockstep" else 400.0)
         deadline = time.monotonic() + limit
         autopilot = procs[1][1]
@@ -77,20 +99,81 @@ def run_demo(opts: DemoOptions) -> dict[str, object]:
         if autopilot.returncode != 0:
             raise DemoError(f"autopilot failed: {_reason(autopilot)}")
     finally:
-        for _, p in procs:
-            if p.poll() is None:
-                p.send_signal(signal.SIGTERM)
-        for _, p in procs:
-            try:
-                p.wait(timeout=5)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
+        _stop_all(procs)
     summary_path = opts.out / "summary.json"
     if not summary_path.is_file():
         raise DemoError("autopilot wrote no summary.json")
     summary: dict[str, object] = json.loads(summary_path.read_text())
     return summary
+
+
+@dataclass(frozen=True)
+class UpOptions:
+    mode: str = "realtime"
+    rate_hz: float = 100.0
+    scenario: str = "paper"
+    in_air: bool = False
+    gcs_port: int = 14550
+    api_port: int = 14540
+    local_gcs_port: int = 18570
+    local_api_port: int = 14580
+    signing_key: str | None = None
+    out: str | None = None
+    plant_port: int = 0
+    autopilot_port: int = 0
+
+
+def up_commands(opts: UpOptions) -> list[tuple[str, list[str]]]:
+    pp = opts.plant_port or free_udp_port()
+    ap = opts.autopilot_port or free_udp_port()
+    # realtime: the plant integrates at twice the control rate, so every tick sees a fresh state
+    plant_rate = opts.rate_hz * (2 if opts.mode == "realtime" else 1)
+    plant = _cmd("heli_sitl.cli") + [
+        "run", "--mode", opts.mode, "--rate-hz", str(plant_rate), "--scenario", opts.scenario,
+        "--port", str(pp), "--autopilot-port", str(ap), "--timeout-s", "2",
+    ] + (["--hold-until-armed"] if opts.in_air else ["--on-ground"])  # fmt: skip
+    autopilot = _cmd("autopilot.cli") + [
+        "--mode", opts.mode, "--rate-hz", str(opts.rate_hz), "--scenario", opts.scenario,
+        "--port", str(ap), "--plant-port", str(pp),
+        "--gcs-port", str(opts.gcs_port), "--api-port", str(opts.api_port),
+        "--local-gcs-port", str(opts.local_gcs_port), "--local-api-port", str(opts.local_api_port),
+    ] + (["--signing-key", opts.signing_key] if opts.signing_key else []) + (
+        ["--out", opts.out] if opts.out else []
+    )  # fmt: skip
+    return [("plant", plant), ("autopilot", autopilot)]
+
+
+def serve(opts: UpOptions, stop_after_s: float | None = None) -> None:
+    """Start plant and autopilot and keep them serving until Ctrl-C (or ``stop_after_s``)."""
+    procs = [(name, spawn(cmd)) for name, cmd in up_commands(opts)]
+    print(
+        f"heli-sitl up: vehicle on UDP 127.0.0.1:{opts.gcs_port} (ground stations) and "
+        f":{opts.api_port} (API clients); Ctrl-C to stop",
+        flush=True,
+    )
+    t0 = time.monotonic()
+    try:
+        while stop_after_s is None or time.monotonic() - t0 < stop_after_s:
+            for name, p in procs:
+                if p.poll() is not None:
+                    raise DemoError(f"{name} died: {_reason(p)}")
+            time.sleep(0.2)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        _stop_all(procs)
+
+
+def _stop_all(procs: list[tuple[str, subprocess.Popen[bytes]]]) -> None:
+    for _, p in procs:
+        if p.poll() is None:
+            p.send_signal(signal.SIGTERM)
+    for _, p in procs:
+        try:
+            p.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait()
 
 
 def _reason(p: subprocess.Popen[bytes]) -> str:

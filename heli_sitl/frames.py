@@ -59,6 +59,8 @@ def quaternion_to_euler(q: VecIn) -> Vec3:
     """Unit quaternion (w, x, y, z) -> ZYX (roll, pitch, yaw)."""
     w, x, y, z = (float(v) for v in q)
     n = math.sqrt(w * w + x * x + y * y + z * z)
+    if not (math.isfinite(n) and n > 0.0):
+        raise ValueError(f"not a rotation quaternion: {tuple(q)}")
     w, x, y, z = w / n, x / n, y / n, z / n
     roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
     pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))

@@ -69,4 +69,10 @@ def cross(a: FloatArray, b: FloatArray) -> FloatArray:
 @njit
 def wrap_pi(angle_rad: float) -> float:
     """Wrap an angle to (-pi, pi]."""
-    return angle_rad - 2.0 * math.pi * math.ceil((angle_rad - math.pi) / (2.0 * math.pi))
+    a = angle_rad - 2.0 * math.pi * math.ceil((angle_rad - math.pi) / (2.0 * math.pi))
+    # the quotient can round across an integer near +-pi: fold the one-ulp overshoot back
+    if a > math.pi:
+        a -= 2.0 * math.pi
+    elif a <= -math.pi:
+        a += 2.0 * math.pi
+    return a

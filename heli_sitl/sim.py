@@ -15,12 +15,13 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
-from heli_sitl.mavlink_link import MavlinkUdp
+from heli_sitl.mavlink_link import MavlinkUdp, mavlink2
 from heli_sitl.plant import Plant
 from heli_sitl.servo_map import limits_array
 from heli_sitl.sim_protocol import decode_command, period_us, state_messages
 
 log = logging.getLogger("heli_sitl.sim")
+MAV_MODE_FLAG_SAFETY_ARMED = int(mavlink2.MAV_MODE_FLAG_SAFETY_ARMED)
 LOCKSTEP_SPIN_S = 0.001  # poll this long before sleeping (see MavlinkUdp.wait)
 
 
@@ -31,6 +32,7 @@ class SimConfig:
     duration_s: float | None = None  # None: until stopped
     timeout_s: float = 1.0  # autopilot silent after this long without a command
     resend_s: float = 0.2  # lockstep: re-send the state after this long without an answer
+    hold_until_armed: bool = False  # in-air start: the clock waits for an armed command
 
 
 @dataclass
@@ -55,6 +57,7 @@ class PlantServer:
         self.period_us = period_us(cfg.rate_hz)
         self.t_us = 0
         self._last_cmd_us = -1
+        self._waiting_for_arm = cfg.hold_until_armed
 
     def _publish(self) -> None:
         self.link.send(*state_messages(self.t_us, self.plant.x))
@@ -72,7 +75,14 @@ class PlantServer:
             log.info("autopilot back")
         self.stats.autopilot_silent = silent
 
-    def _commands(self) -> list[tuple[int, Any]]:
+    def _frozen(self, armed: bool) -> bool:
+        """While holding for an armed autopilot, the clock does not start."""
+        if self._waiting_for_arm and armed:
+            self._waiting_for_arm = False
+            log.info("autopilot armed: the clock starts")
+        return self._waiting_for_arm
+
+    def _commands(self) -> list[tuple[int, Any, bool]]:
         out = []
         for msg, _ in self.link.recv():
             if msg.get_type() != "HIL_ACTUATOR_CONTROLS":
@@ -81,7 +91,7 @@ class PlantServer:
             if cmd is None:
                 self.stats.bad_commands += 1
                 continue
-            out.append(cmd)
+            out.append((*cmd, bool(msg.mode & MAV_MODE_FLAG_SAFETY_ARMED)))
         return out
 
     def run(self, stop: threading.Event) -> SimStats:
@@ -98,11 +108,13 @@ class PlantServer:
         while not stop.is_set() and not self._end_reached():
             self.link.wait(min(self.cfg.resend_s, 0.05), spin_s=LOCKSTEP_SPIN_S)
             applied = False
-            for t_us, u in self._commands():
+            for t_us, u, armed in self._commands():
                 if t_us != self.t_us:
                     self.stats.stale_commands += 1
                     continue
                 self.stats.commands += 1
+                if self._frozen(armed):
+                    continue
                 if not self.plant.set_pitches(u):
                     self.stats.bad_commands += 1
                 applied = True
@@ -130,8 +142,8 @@ class PlantServer:
         # while the autopilot is starting; until then the state is published at 20 Hz.
         while not stop.is_set():
             cmds = self._commands()
-            if cmds:
-                t_us, u = cmds[-1]
+            if cmds and not self._frozen(cmds[-1][2]):
+                t_us, u, _ = cmds[-1]
                 self._last_cmd_us = t_us
                 self.plant.set_pitches(u)
                 break
@@ -141,7 +153,7 @@ class PlantServer:
         last_cmd = start
         k = 0
         while not stop.is_set() and not self._end_reached():
-            for t_us, u in self._commands():
+            for t_us, u, _armed in self._commands():
                 if t_us < self._last_cmd_us:
                     self.stats.stale_commands += 1
                     continue

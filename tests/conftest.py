@@ -6,6 +6,7 @@ The closed-loop helpers fly the controller kernel and the plant through
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -20,8 +21,10 @@ from heli_sitl.plant import Plant
 from heli_sitl.state import N_PITCH, N_STATE, PSI, Z_U, FloatArray
 
 # The first call of a compiled function loads (or compiles) it: no per-example deadline.
+# HYPOTHESIS_PROFILE=thorough runs 20x more examples per property.
 settings.register_profile("heli", deadline=None)
-settings.load_profile("heli")
+settings.register_profile("thorough", deadline=None, max_examples=2000)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "heli"))
 
 RATE_HZ = 100.0
 HOVER_ALT_M = 50.0  # far from the ground plane (contact would level the attitude)

@@ -123,12 +123,6 @@ def test_paper_nose_along_the_path_exact(paper: Scenario) -> None:
     assert _heading_error(run(paper, "exact"), 10.0) < 0.01
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="BUG (pseudo mode): the yaw command drifts off the path tangent, -0.32 rad at "
-    "120 s at 100 Hz (-0.67 at 50 Hz, -0.06 at 400 Hz): the biased d2 output of "
-    "autopilot/tlc/differentiator.py diff_step (see test_tlc D2_BIAS)",
-)
 def test_paper_nose_along_the_path_pseudo(paper: Scenario) -> None:
     assert _heading_error(run(paper, "pseudo"), 10.0) < 0.05
 
@@ -171,9 +165,7 @@ def test_one_tick_map_layout() -> None:
     assert N_STATE + CTRL_IDX.size == 48
 
 
-def test_hover_equilibrium_is_the_plant_trim(
-    hover_eq: HoverEquilibrium, airframe: Airframe
-) -> None:
+def test_hover_equilibrium_is_the_plant_trim(hover_eq: HoverEquilibrium, airframe: Airframe) -> None:
     """The controller settles on the plant's true trim (integrators absorb the design-model
     gap): zero accelerations at the held pitches, and the same pitches fsolve finds."""
     c = airframe.constants()
@@ -193,9 +185,7 @@ def test_hover_equilibrium_is_the_plant_trim(
     assert_allclose(hover_eq.x[[PHI, THETA]], trim[4:], atol=1e-8)
 
 
-def _eigs_at(
-    k: TLCConstants, st: FloatArray, plant: Plant, x: FloatArray, ref: FloatArray
-) -> FloatArray:
+def _eigs_at(k: TLCConstants, st: FloatArray, plant: Plant, x: FloatArray, ref: FloatArray) -> FloatArray:
     f = one_tick_map(k, st, plant, ref)
     z0 = np.concatenate([x, st[CTRL_IDX]])
     return np.asarray(np.linalg.eigvals(fd_jacobian(f, z0)))
@@ -255,12 +245,8 @@ def test_climb_1m_s(paper: Scenario, ff: str) -> None:
     out and the error keeps shrinking to 60 s."""
     sc = dataclasses.replace(
         paper,
-        trajectory=StraightLine(
-            start_nwu_m=(0.0, 0.0, 10.0), vel_nwu_m_s=(0.0, 0.0, 1.0), duration_s=60.0
-        ),
-        initial=dataclasses.replace(
-            paper.initial, pos_nwu_m=(0.0, 0.0, 10.0), euler_rad=(0.0, 0.0, 0.0)
-        ),
+        trajectory=StraightLine(start_nwu_m=(0.0, 0.0, 10.0), vel_nwu_m_s=(0.0, 0.0, 1.0), duration_s=60.0),
+        initial=dataclasses.replace(paper.initial, pos_nwu_m=(0.0, 0.0, 10.0), euler_rad=(0.0, 0.0, 0.0)),
         run=dataclasses.replace(paper.run, duration_s=60.0, feedforward=ff),
     )
     rec = simulate(sc)

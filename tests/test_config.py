@@ -104,9 +104,7 @@ def test_limits_pair(tmp_path: Path) -> None:
     p, msg = airframe_error(tmp_path, "theta_m_rad = [-0.10, 0.30]", "theta_m_rad = [0.30, -0.10]")
     assert str(p) in msg and "theta_m_rad" in msg and "must be below upper limit" in msg
     p, msg = airframe_error(tmp_path, "eps_rad = [-0.14, 0.14]", "eps_rad = [-0.14, 0.9]")
-    assert (
-        "limits.eps_rad[1]" in msg and "expected a finite number in [-0.5, 0.5] rad, got 0.9" in msg
-    )
+    assert "limits.eps_rad[1]" in msg and "expected a finite number in [-0.5, 0.5] rad, got 0.9" in msg
 
 
 def test_inertia_must_be_positive_definite(tmp_path: Path) -> None:
@@ -138,11 +136,6 @@ def test_missing_file(tmp_path: Path) -> None:
     assert str(p) in str(exc.value) and "no such config file" in str(exc.value)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="heli_sitl/config.py _build/build: top-level errors read 'file.toml:: unknown key' "
-    "(build appends ':' to the source and _build adds ': ' again)",
-)
 def test_no_double_colon(tmp_path: Path) -> None:
     _, msg = airframe_error(tmp_path, "[air]", "[airr]")
     assert "::" not in msg

@@ -24,9 +24,7 @@ ZERO3 = np.zeros(3)
 
 
 def with_ixz(airframe: Airframe, ixz: float) -> PlantConstants:
-    return dataclasses.replace(
-        airframe, body=dataclasses.replace(airframe.body, ixz_kg_m2=ixz)
-    ).constants()
+    return dataclasses.replace(airframe, body=dataclasses.replace(airframe.body, ixz_kg_m2=ixz)).constants()
 
 
 def inertia(c: PlantConstants) -> FloatArray:
@@ -42,9 +40,7 @@ def skew(w: FloatArray) -> FloatArray:
     return np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
 
 
-def rk4(
-    x: FloatArray, f: FloatArray, q: FloatArray, c: PlantConstants, h: float, n: int
-) -> FloatArray:
+def rk4(x: FloatArray, f: FloatArray, q: FloatArray, c: PlantConstants, h: float, n: int) -> FloatArray:
     """A local classical RK4 over rigid_body (forces and torques held)."""
     out = np.empty((n + 1, x.size))
     out[0] = x
@@ -239,9 +235,7 @@ def test_plant_clips_and_refuses(airframe: Airframe) -> None:
     plant = Plant(airframe, np.zeros(N_STATE))
     assert plant.set_pitches(np.array([1.0, -1.0, 0.5, -0.5]))
     lim = airframe.limits
-    assert_allclose(
-        plant.u, [lim.theta_m_rad[1], lim.theta_t_rad[0], lim.eps_rad[1], lim.eta_rad[0]]
-    )
+    assert_allclose(plant.u, [lim.theta_m_rad[1], lim.theta_t_rad[0], lim.eps_rad[1], lim.eta_rad[0]])
     held = plant.u.copy()
     assert not plant.set_pitches(np.array([0.1, math.nan, 0.0, 0.0]))
     assert not plant.set_pitches(np.array([0.1, 0.0, math.inf, 0.0]))

@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from numpy.testing import assert_allclose
@@ -25,6 +26,15 @@ pitch = st.floats(-1.5, 1.5)  # |theta| < pi/2, away from gimbal lock
 yaw_any = st.floats(-20.0, 20.0)  # several turns, to exercise the wrap
 yaw = st.floats(-PI, PI)
 euler = st.tuples(roll, pitch, yaw_any)
+
+
+# wrap_pi can land 1 ulp above pi (see test_wrap_pi_just_above_minus_pi); the properties
+# below allow that ulp so they test everything else.
+ULP = 1e-15
+
+
+def in_range(a: float) -> bool:
+    return -PI < a <= PI + ULP
 
 
 def ang_diff(a: float, b: float) -> float:
@@ -88,12 +98,12 @@ def test_euler_flu_frd_round_trip(e: tuple[float, float, float]) -> None:
     assert frd[0] == e[0]
     assert frd[1] == -e[1]
     assert ang_diff(frd[2], -e[2]) < 1e-12
-    assert -PI < frd[2] <= PI  # MAVLink ATTITUDE yaw range
+    assert in_range(frd[2])  # MAVLink ATTITUDE yaw range
     back = frames.euler_frd_to_flu(frd)
     assert back[0] == e[0]
     assert back[1] == e[1]
     assert ang_diff(back[2], e[2]) < 1e-12
-    assert -PI < back[2] <= PI
+    assert in_range(back[2])
 
 
 @given(st.tuples(roll, pitch, yaw))
@@ -125,10 +135,16 @@ def test_wrap_pi_edges() -> None:
     assert frames.euler_flu_to_frd((0.0, 0.0, -PI))[2] == PI
 
 
+def test_wrap_pi_just_above_minus_pi() -> None:
+    a = math.nextafter(-PI, 0.0)
+    assert -PI < wrap_pi(a) <= PI
+    assert -PI < frames.euler_flu_to_frd((0.0, 0.0, -a))[2] <= PI
+
+
 @given(st.floats(-1e4, 1e4))
 def test_wrap_pi_range_and_congruence(a: float) -> None:
     w = wrap_pi(a)
-    assert -PI < w <= PI
+    assert in_range(w)
     k = (a - w) / (2 * PI)
     assert abs(k - round(k)) < 1e-9
 
@@ -195,18 +211,14 @@ def test_state_round_trip(
 
 
 @given(euler, vec3)
-def test_body_rates_map_like_vectors(
-    e: tuple[float, float, float], om: tuple[float, float, float]
-) -> None:
+def test_body_rates_map_like_vectors(e: tuple[float, float, float], om: tuple[float, float, float]) -> None:
     """omega_FRD = T omega_FLU is the rate of the FRD attitude: d/dt of T Rt T is
     (T Rt T) [T omega]x exactly when Rt' = Rt [omega]x."""
     w = np.array(om)
     sk = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
     rt_dot = rot_body_to_earth(*e) @ sk
     w_frd = np.array(frames.flu_to_frd(om))
-    sk_frd = np.array(
-        [[0, -w_frd[2], w_frd[1]], [w_frd[2], 0, -w_frd[0]], [-w_frd[1], w_frd[0], 0]]
-    )
+    sk_frd = np.array([[0, -w_frd[2], w_frd[1]], [w_frd[2], 0, -w_frd[0]], [-w_frd[1], w_frd[0], 0]])
     lhs = T @ rt_dot @ T
     rhs = rot_body_to_earth(*frames.euler_flu_to_frd(e)) @ sk_frd
     assert_allclose(lhs, rhs, atol=1e-9 * (1 + np.abs(w).max()))

@@ -170,6 +170,16 @@ def test_duplicate_item_is_dropped_silently(link: Link) -> None:
     assert ack_type(link.send(item_msg(items[2]))) == ms.ACCEPTED
 
 
+def test_gcs_streaming_all_items_without_waiting_is_accepted(link: Link) -> None:
+    items = [wp(i, 5.0 * i, 1.0, 10.0) for i in range(5)]
+    link.send(count(5))
+    replies = [link.send(item_msg(it)) for it in items]  # not waiting for our requests
+    replies.append(link.send(item_msg(items[-1])))  # and repeating the last one
+    acks = [int(m.type) for r in replies for m in r if m.get_type() == "MISSION_ACK"]
+    assert acks == [ms.ACCEPTED, ms.ACCEPTED]  # the final one, again for the repeat
+    assert link.server.mission == tuple(items)
+
+
 def test_item_with_no_upload_in_progress_is_invalid_sequence(link: Link) -> None:
     assert ack_type(link.send(item_msg(wp(0, 0, 0, 10)))) == ms.INVALID_SEQUENCE
 

@@ -22,17 +22,13 @@ pitch = st.floats(-0.5, 0.5)
 @given(pitch, which)
 def test_inverse_of_thrust_coeff(theta: float, rotor: str) -> None:
     a, s = ROTORS[rotor]
-    assert_allclose(
-        pitch_from_thrust_coeff(thrust_coeff(theta, a, s), a, s), theta, rtol=0, atol=1e-13
-    )
+    assert_allclose(pitch_from_thrust_coeff(thrust_coeff(theta, a, s), a, s), theta, rtol=0, atol=1e-13)
 
 
 @given(st.floats(-0.1, 0.1), which)
 def test_thrust_coeff_of_inverse(tc: float, rotor: str) -> None:
     a, s = ROTORS[rotor]
-    assert_allclose(
-        thrust_coeff(pitch_from_thrust_coeff(tc, a, s), a, s), tc, rtol=1e-11, atol=1e-16
-    )
+    assert_allclose(thrust_coeff(pitch_from_thrust_coeff(tc, a, s), a, s), tc, rtol=1e-11, atol=1e-16)
 
 
 @given(pitch, which)

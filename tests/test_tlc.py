@@ -79,9 +79,7 @@ def test_a3_is_jacobian_of_euler_rates(
 
 @pytest.mark.parametrize("c", [_C, _C_LM], ids=["ixz=0", "ixz=0.04"])
 @given(w=st.tuples(rate, rate, rate))
-def test_a4_is_jacobian_of_gyroscopic_term(
-    c: PlantConstants, w: tuple[float, float, float]
-) -> None:
+def test_a4_is_jacobian_of_gyroscopic_term(c: PlantConstants, w: tuple[float, float, float]) -> None:
     j = inertia(c)
     j_inv = np.linalg.inv(j)
 
@@ -105,9 +103,7 @@ def test_a4_nonzero_ixz_couples_roll_and_yaw() -> None:
 # --- allocation and force inversion (design model, spec section 3) -------------------------------
 
 
-def design_torque(
-    tm: float, qm: float, tt: float, eps: float, eta: float, c: PlantConstants
-) -> FloatArray:
+def design_torque(tm: float, qm: float, tt: float, eps: float, eta: float, c: PlantConstants) -> FloatArray:
     return np.array(
         [
             tm * c.hm * eta + tt * c.ht + qm * eps,
@@ -246,28 +242,14 @@ def test_differentiator_tracks_a_ramp() -> None:
     assert_allclose(d1, slope, rtol=3e-4)
 
 
-D2_BIAS = (
-    "BUG autopilot/tlc/differentiator.py diff_step: d2 = -wd^2 (x1 - u[k]) - 2 zd wd x2 "
-    "pairs x2(t_k) with the input sample that just stepped, so on a ramp it reads about "
-    "wd^2 dt / 2 * slope (0.126 * slope at 100 Hz) instead of 0; in pseudo mode the yaw "
-    "rate on the paper circle is then 3.6 % too fast at 100 Hz (7.4 % at 50 Hz)"
-)
 
 
-@pytest.mark.xfail(strict=True, reason=D2_BIAS)
 @pytest.mark.parametrize("rate_hz", [50.0, 100.0])
 def test_differentiator_second_derivative_of_a_ramp_is_zero(rate_hz: float) -> None:
     slope, _, d2 = _ramp_outputs(rate_hz)
     assert_allclose(d2, 0.0, atol=0.01 * np.abs(slope).max())
 
 
-def test_differentiator_second_derivative_bias_is_along_the_slope() -> None:
-    """What the current d2 output does (see D2_BIAS): a bias parallel to the slope."""
-    slope, _, d2 = _ramp_outputs(100.0)
-    assert_allclose(d2, 0.5 * 25.0 * 0.01 * slope, rtol=2e-2)
-
-
-@pytest.mark.xfail(strict=True, reason=D2_BIAS)
 def test_pseudo_differentiated_circle_gives_the_yaw_rate() -> None:
     """Pseudo mode: x', y', x'', y'' all from the differentiator should give dpsi/dt = -w on
     the paper circle (the filter's lag is common to both and cancels in the ratio)."""
@@ -360,9 +342,7 @@ def _hover_state(z: float = 20.0) -> FloatArray:
     return x
 
 
-def _ref(
-    pos: tuple[float, float, float], vel: tuple[float, float, float] = (0, 0, 0)
-) -> FloatArray:
+def _ref(pos: tuple[float, float, float], vel: tuple[float, float, float] = (0, 0, 0)) -> FloatArray:
     r = np.zeros(N_REF)
     r[0:3], r[3:6] = pos, vel
     return r
@@ -466,6 +446,4 @@ def test_yaw_error_is_wrapped(gains: Gains, psi: float, psi_c: float) -> None:
     x[8] = psi
     xb = x.copy()
     xb[8] = psi + 2 * math.pi
-    assert_allclose(
-        a.update(0.01, x, _ref((0, 0, 20))), b.update(0.01, xb, _ref((0, 0, 20))), atol=1e-9
-    )
+    assert_allclose(a.update(0.01, x, _ref((0, 0, 20))), b.update(0.01, xb, _ref((0, 0, 20))), atol=1e-9)

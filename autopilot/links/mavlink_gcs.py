@@ -139,6 +139,7 @@ class GcsService:
         self._u: FloatArray = np.zeros(4)
         self._flight: Flight | None = None
         self._prev_tau: float | None = None
+        self._broken: set[int] = set()
 
     # -- lifecycle ------------------------------------------------------------------------
     def close(self) -> None:
@@ -181,9 +182,15 @@ class GcsService:
         for msg_id, interval in self.intervals_s.items():
             if t >= self.next_due.get(msg_id, 0.0):
                 self.next_due[msg_id] = t + interval
-                msg = self.build(msg_id)
-                if msg is not None:
-                    due.append(msg)
+                try:
+                    msg = self.build(msg_id)
+                    if msg is not None:
+                        self.links[0].pack(msg)  # packing checks every field's range
+                        due.append(msg)
+                except Exception:  # one bad message must not stop the vehicle
+                    if msg_id not in self._broken:
+                        log.exception("telemetry message %d not sent", msg_id)
+                    self._broken.add(msg_id)
         self._send_all(due)
 
     def build(self, msg_id: int) -> Message | None:
@@ -206,7 +213,7 @@ class GcsService:
             sensors = (m2.MAV_SYS_STATUS_SENSOR_3D_GYRO | m2.MAV_SYS_STATUS_SENSOR_3D_ACCEL
                        | m2.MAV_SYS_STATUS_SENSOR_GPS)  # fmt: skip
             return m2.MAVLink_sys_status_message(
-                sensors, sensors, sensors, 100, -1, -1, -1, 0, 0, 0, 0, 0, 0
+                sensors, sensors, sensors, 100, 0xFFFF, -1, -1, 0, 0, 0, 0, 0, 0
             )
         if msg_id in (m2.MAVLINK_MSG_ID_ATTITUDE, m2.MAVLINK_MSG_ID_LOCAL_POSITION_NED):
             att, lpn = telemetry.attitude_and_position(t_us, x)

@@ -29,6 +29,7 @@ class DiffCoeffs(NamedTuple):
     b2: float
     wd2: float  # wd^2
     twozw: float  # 2 zd wd
+    dt_s: float
 
 
 def discretize(omega_rad_s: float, zeta: float, dt_s: float) -> DiffCoeffs:
@@ -40,7 +41,7 @@ def discretize(omega_rad_s: float, zeta: float, dt_s: float) -> DiffCoeffs:
     ph = expm(aug * dt_s)
     return DiffCoeffs(
         float(ph[0, 0]), float(ph[0, 1]), float(ph[1, 0]), float(ph[1, 1]),
-        float(ph[0, 2]), float(ph[1, 2]), omega_rad_s**2, 2.0 * zeta * omega_rad_s,
+        float(ph[0, 2]), float(ph[1, 2]), omega_rad_s**2, 2.0 * zeta * omega_rad_s, dt_s,
     )  # fmt: skip
 
 
@@ -65,4 +66,7 @@ def diff_step(st: FloatArray, off: int, u: FloatArray, c: DiffCoeffs, d1: FloatA
         st[off + i] = n1
         st[off + 3 + i] = n2
         d1[i] = x2
-        d2[i] = -c.wd2 * (x1 - u[i]) - c.twozw * x2
+        # The mean of dx2/dt over the coming hold interval: unbiased on a ramp, unlike
+        # -wd^2 (x1 - u[k]) - 2 zd wd x2, which pairs x2(t_k) with the sample that just
+        # stepped and made the pseudo-mode yaw rate 3.6 % fast on the paper circle.
+        d2[i] = (n2 - x2) / c.dt_s
