@@ -25,7 +25,7 @@ from heli_sitl.sim_protocol import StateSample
 from heli_sitl.state import N_PITCH, FloatArray
 
 log = logging.getLogger("autopilot.runner")
-LOCKSTEP_SPIN_S = 0.001  # poll this long before sleeping (see MavlinkUdp.wait)
+LOCKSTEP_SPIN_S = 0.002  # poll this long before sleeping (see MavlinkUdp.wait)
 
 # (t_s, x, ref or None, pitches, flight) -> None: telemetry, logging, GCS services
 TickHook = Callable[[float, FloatArray, FloatArray | None, FloatArray, Flight], None]

@@ -77,8 +77,9 @@ def _run(args: argparse.Namespace) -> int:
                     hold_until_armed=args.hold_until_armed)  # fmt: skip
     plant = Plant(airframe, x0, substeps=args.plant_substeps)
     try:
+        # the plant is component 51 of the vehicle; it takes commands from system 1 only
         link = MavlinkUdp((LOOPBACK, args.port), (LOOPBACK, args.autopilot_port), system_id=1,
-                          component_id=51)  # fmt: skip
+                          component_id=51, accept_system=1)  # fmt: skip
     except PortBusyError as exc:
         print(f"heli-sitl: {exc.strerror}", file=sys.stderr)
         return 3

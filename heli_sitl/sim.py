@@ -22,7 +22,7 @@ from heli_sitl.sim_protocol import decode_command, period_us, state_messages
 
 log = logging.getLogger("heli_sitl.sim")
 MAV_MODE_FLAG_SAFETY_ARMED = int(mavlink2.MAV_MODE_FLAG_SAFETY_ARMED)
-LOCKSTEP_SPIN_S = 0.001  # poll this long before sleeping (see MavlinkUdp.wait)
+LOCKSTEP_SPIN_S = 0.002  # poll this long before sleeping (see MavlinkUdp.wait)
 
 
 @dataclass(frozen=True)

@@ -9,7 +9,7 @@ from heli_sitl.state import FloatArray
 
 class SimLink:
     def __init__(self, local: Address, plant: Address, limits: FloatArray) -> None:
-        self.udp = MavlinkUdp(local, plant, system_id=1, component_id=1)
+        self.udp = MavlinkUdp(local, plant, system_id=1, component_id=1, accept_system=1)
         self.limits = limits
         self.assembler = StateAssembler()
 

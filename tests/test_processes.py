@@ -1,0 +1,200 @@
+"""Plant and autopilot as real OS processes on loopback: lockstep, real time, faults, fuzz."""
+
+from __future__ import annotations
+
+import json
+import random
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from autopilot.closed_loop import simulate
+from autopilot.scenario import Scenario
+from ground.plots import read_csv_columns
+from heli_sitl.demo import DemoError, DemoOptions, UpOptions, free_udp_port, run_demo, spawn, up_commands
+from heli_sitl.mavlink_link import LOOPBACK, MavlinkUdp, mavlink2
+from heli_sitl.sim_protocol import command_message, state_messages
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(scope="module")
+def in_process() -> dict[str, np.ndarray]:
+    rec = simulate(Scenario.load("paper"))
+    cols = rec.columns()
+    cols["summary"] = rec.summary()  # type: ignore[assignment]
+    return cols
+
+
+def test_lockstep_reproduces_the_in_process_flight(tmp_path: Path, in_process) -> None:  # type: ignore[no-untyped-def]
+    summary = run_demo(DemoOptions(mode="lockstep", rate_hz=100.0, out=tmp_path, timeout_s=600))
+    cols = read_csv_columns(tmp_path / "run.csv")
+    assert cols["t"].size == in_process["t"].size == 12001
+    d = np.stack([cols[k] - in_process[k] for k in ("x", "y", "z")], axis=1)
+    rms = float(np.sqrt(np.mean(np.sum(d**2, axis=1))))
+    assert rms <= 1e-3, f"lockstep vs in-process RMS {rms:.2e} m"
+    assert summary["loop"]["bad_outputs"] == 0  # type: ignore[index]
+    assert summary["sim_link"]["rx_bad"] == 0  # type: ignore[index]
+    # the .tlog is a pymavlink log with the required messages
+    dump = subprocess.run(
+        [sys.executable, "-m", "pymavlink.tools.mavlogdump", "--types",
+         "LOCAL_POSITION_NED,ATTITUDE,POSITION_TARGET_LOCAL_NED,SERVO_OUTPUT_RAW",
+         str(tmp_path / "flight.tlog")],
+        capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    kinds = {ln.split()[2] for ln in dump.stdout.splitlines() if len(ln.split()) > 2}
+    assert {"LOCAL_POSITION_NED", "ATTITUDE", "POSITION_TARGET_LOCAL_NED", "SERVO_OUTPUT_RAW"} <= kinds
+
+
+def test_realtime_100hz_tracks_the_paper(tmp_path: Path, in_process) -> None:  # type: ignore[no-untyped-def]
+    summary = run_demo(DemoOptions(mode="realtime", rate_hz=100.0, out=tmp_path, timeout_s=400))
+    ref = in_process["summary"]
+    rms, rms_ref = summary["rms_pos_err_m"]["45-120"], ref["rms_pos_err_m"]["45-120"]  # type: ignore[index]
+    jump, jump_ref = summary["max_pos_err_40_45_m"], ref["max_pos_err_40_45_m"]
+    assert rms <= 1.2 * rms_ref, f"RMS [45,120] {rms:.4f} vs {rms_ref:.4f} in-process"
+    assert jump <= 1.2 * jump_ref, f"max [40,45] {jump:.3f} vs {jump_ref:.3f} in-process"  # type: ignore[operator]
+    loop = summary["loop"]
+    assert loop["plant_stale_events"] == 0 and loop["bad_outputs"] == 0  # type: ignore[index]
+
+
+def test_a_busy_port_is_a_one_line_failure(tmp_path: Path) -> None:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind((LOOPBACK, 0))
+        with pytest.raises(DemoError, match=r"plant died: .*busy"):
+            run_demo(DemoOptions(plant_port=s.getsockname()[1], out=tmp_path, duration_s=2.0, timeout_s=120))
+
+
+def _wait_for(link: MavlinkUdp, kind: str, timeout_s: float) -> object:
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        for m, _ in link.recv(timeout_s=0.2):
+            if m.get_type() == kind:
+                return m
+    raise AssertionError(f"no {kind} within {timeout_s} s")
+
+
+@pytest.fixture
+def served() -> Iterator[tuple[UpOptions, list[subprocess.Popen[bytes]], MavlinkUdp]]:
+    """`heli-sitl up` (real time, on the ground) with every port chosen here, and a GCS socket."""
+    gcs = MavlinkUdp((LOOPBACK, 0), drop_nonfinite=False)
+    opts = UpOptions(
+        gcs_port=gcs.local[1], api_port=free_udp_port(), local_gcs_port=free_udp_port(),
+        local_api_port=free_udp_port(), plant_port=free_udp_port(), autopilot_port=free_udp_port(),
+    )  # fmt: skip
+    procs = [spawn(cmd) for _, cmd in up_commands(opts)]
+    try:
+        _wait_for(gcs, "HEARTBEAT", 120.0)
+        yield opts, procs, gcs
+    finally:
+        for p in procs:
+            p.send_signal(signal.SIGTERM)
+        for p in procs:
+            p.wait(timeout=10)
+        gcs.close()
+
+
+def _mutations(rng: random.Random) -> list[bytes]:
+    """Valid sim and GCS packets, and the raw material for truncating and mutating them."""
+    mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+    limits = np.array([[-0.1, 0.3]] * 4)
+    good = [
+        b"".join(bytes(m.pack(mav)) for m in state_messages(rng.randrange(10**9), np.zeros(12))),
+        bytes(command_message(rng.randrange(10**9), np.zeros(4), limits, True).pack(mav)),
+        bytes(mavlink2.MAVLink_command_long_message(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0).pack(mav)),
+        bytes(mavlink2.MAVLink_param_request_list_message(1, 1).pack(mav)),
+        bytes(mavlink2.MAVLink_mission_count_message(1, 1, 3, 0).pack(mav)),
+    ]
+    nan_cmd = command_message(5, np.zeros(4), limits, True)
+    nan_cmd.controls = [float("nan")] * 16
+    good.append(bytes(nan_cmd.pack(mav)))
+    return good
+
+
+def test_fuzz_both_processes_keep_flying(served) -> None:  # type: ignore[no-untyped-def]
+    opts, procs, gcs = served
+    rng = random.Random(1234)
+    good = _mutations(rng)
+    targets = [opts.plant_port, opts.autopilot_port, opts.local_gcs_port, opts.local_api_port]
+    sent = 0
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        t_end = time.monotonic() + 60.0  # bounded in time as well as in count
+        while sent < 20_000 and time.monotonic() < t_end:
+            kind = sent % 4
+            base = bytearray(rng.choice(good))
+            if kind == 0:
+                data = bytes(rng.getrandbits(8) for _ in range(rng.randrange(1, 300)))
+            elif kind == 1:
+                data = bytes(base[: rng.randrange(1, len(base))])
+            elif kind == 2:
+                for _ in range(rng.randrange(1, 4)):
+                    base[rng.randrange(len(base))] ^= 1 << rng.randrange(8)
+                data = bytes(base)
+            else:
+                data = bytes(base)  # valid: out-of-order times, NaN commands, commands, lists
+            s.sendto(data, (LOOPBACK, targets[sent % len(targets)]))
+            sent += 1
+            if sent % 200 == 0:
+                time.sleep(0.01)  # about 20k datagrams a second at most
+    assert sent == 20_000
+    assert all(p.poll() is None for p in procs), "a process died under fuzzing"
+    # the loop still runs: telemetry keeps coming with advancing time
+    first = _wait_for(gcs, "LOCAL_POSITION_NED", 10.0)
+    time.sleep(0.5)
+    later = _wait_for(gcs, "LOCAL_POSITION_NED", 10.0)
+    assert later.time_boot_ms > first.time_boot_ms  # type: ignore[attr-defined]
+    for m in (first, later):
+        assert all(np.isfinite([m.x, m.y, m.z]))  # type: ignore[attr-defined]
+    servo = _wait_for(gcs, "SERVO_OUTPUT_RAW", 10.0)
+    assert all(1000 <= getattr(servo, f"servo{i}_raw") <= 2000 for i in range(1, 5))
+
+
+def _json_from_stderr(p: subprocess.Popen[bytes]) -> dict[str, object]:
+    err = p.stderr.read().decode() if p.stderr else ""
+    for line in reversed(err.splitlines()):
+        if line.startswith("{"):
+            return json.loads(line)  # type: ignore[no-any-return]
+    raise AssertionError(f"no stats line in: {err[-500:]}")
+
+
+def test_silent_links_are_detected_and_the_command_held(tmp_path: Path) -> None:
+    pp, ap = free_udp_port(), free_udp_port()
+    gcs = MavlinkUdp((LOOPBACK, 0), drop_nonfinite=False)
+    common = ["--mode", "realtime", "--rate-hz", "100", "--duration-s", "8"]
+    plant = spawn([sys.executable, "-m", "heli_sitl.cli", "run", *common, "--port", str(pp),
+                   "--autopilot-port", str(ap), "--timeout-s", "0.5", "-v"])  # fmt: skip
+    autopilot = spawn([sys.executable, "-m", "autopilot.cli", *common, "--port", str(ap),
+                       "--plant-port", str(pp), "--autostart", "--out", str(tmp_path),
+                       "--stale-timeout-s", "0.3", "--gcs-port", str(gcs.local[1]),
+                       "--api-port", str(free_udp_port()), "--local-gcs-port", str(free_udp_port()),
+                       "--local-api-port", str(free_udp_port())])  # fmt: skip
+    try:
+        _wait_for(gcs, "LOCAL_POSITION_NED", 120.0)  # flying (after a cold compile, too)
+        time.sleep(1.0)
+        plant.send_signal(signal.SIGSTOP)  # the plant goes silent ...
+        time.sleep(1.0)
+        plant.send_signal(signal.SIGCONT)
+        time.sleep(1.0)
+        autopilot.send_signal(signal.SIGSTOP)  # ... then the autopilot does
+        time.sleep(1.0)
+        autopilot.send_signal(signal.SIGCONT)
+        assert autopilot.wait(timeout=60) == 0
+        assert plant.wait(timeout=60) == 0
+    finally:
+        gcs.close()
+        for p in (plant, autopilot):
+            if p.poll() is None:
+                p.kill()
+    plant_stats = _json_from_stderr(plant)
+    assert plant_stats["silent_events"] >= 1  # type: ignore[operator]
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["loop"]["plant_stale_events"] >= 1
+    assert summary["loop"]["bad_outputs"] == 0
+    cols = read_csv_columns(tmp_path / "run.csv")
+    assert all(np.all(np.isfinite(cols[k])) for k in ("theta_m", "theta_t", "eps", "eta"))

@@ -1,0 +1,166 @@
+"""The sim link's messages, the UDP link's robustness, and the runner's tick semantics."""
+
+from __future__ import annotations
+
+import math
+import socket
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from numpy.testing import assert_allclose
+
+from autopilot.links.mavlink_sim import SimLink
+from autopilot.modes import Flight
+from autopilot.runner import Runner, RunnerConfig
+from autopilot.scenario import Scenario
+from autopilot.tlc.controller import S_I1, S_I4, TLController
+from autopilot.trajectory.analytic import StraightLine
+from heli_sitl import servo_map
+from heli_sitl.mavlink_link import LOOPBACK, MavlinkUdp, PortBusyError, mavlink2
+from heli_sitl.params import Airframe
+from heli_sitl.sim_protocol import StateAssembler, command_message, decode_command, state_messages
+
+LIMITS = servo_map.limits_array(Airframe.load().limits.as_tuple())
+angles = st.floats(-1.2, 1.2)
+small = st.floats(-20.0, 20.0)
+
+
+def _roundtrip_state(t_us: int, x: np.ndarray) -> np.ndarray:
+    tx = mavlink2.MAVLink(None, srcSystem=1, srcComponent=51)
+    rx = mavlink2.MAVLink(None)
+    data = b"".join(bytes(m.pack(tx)) for m in state_messages(t_us, x))
+    asm = StateAssembler()
+    out = None
+    for m in rx.parse_buffer(data) or []:
+        s = asm.feed(m)
+        if s is not None:
+            out = s
+    assert out is not None and out.t_us == t_us
+    return out.x
+
+
+@settings(max_examples=60)
+@given(
+    pos=st.tuples(small, small, st.floats(0.0, 50.0)),
+    vel=st.tuples(small, small, small),
+    eul=st.tuples(angles, angles, st.floats(-3.1, 3.1)),
+    om=st.tuples(small, small, small),
+)
+def test_state_survives_the_sim_link(pos, vel, eul, om) -> None:  # type: ignore[no-untyped-def]
+    x = np.array([*pos, *vel, *eul, *om])
+    y = _roundtrip_state(123_456_789, x)
+    # float32 on the wire; body velocity goes through the earth frame and back
+    assert_allclose(y[0:3], x[0:3], atol=1e-5 * (1 + np.abs(x[0:3]).max()))
+    assert_allclose(y[3:6], x[3:6], atol=2e-5 * (1 + np.abs(x[3:6]).max()))
+    assert_allclose(y[6:12], x[6:12], atol=2e-6 * (1 + np.abs(x[9:12]).max()))
+
+
+@settings(max_examples=100)
+@given(st.tuples(*(st.floats(lo, hi) for lo, hi in LIMITS)))
+def test_pitches_survive_normalisation(pitches) -> None:  # type: ignore[no-untyped-def]
+    u = np.array(pitches)
+    n = servo_map.to_normalized(u, LIMITS)
+    assert np.all(np.abs(n) <= 1 + 1e-12)
+    msg = command_message(42, u, LIMITS, armed=True)
+    rx = mavlink2.MAVLink(None)
+    [parsed] = rx.parse_buffer(bytes(msg.pack(mavlink2.MAVLink(None, 1, 1))))
+    decoded = decode_command(parsed, LIMITS)
+    assert decoded is not None and decoded[0] == 42
+    assert_allclose(decoded[1], u, atol=1e-6)
+    assert parsed.mode & mavlink2.MAV_MODE_FLAG_SAFETY_ARMED
+
+
+def test_normalisation_maps_the_limits_to_plus_minus_one() -> None:
+    lo, hi = LIMITS[:, 0], LIMITS[:, 1]
+    assert_allclose(servo_map.to_normalized(lo, LIMITS), -1.0)
+    assert_allclose(servo_map.to_normalized(hi, LIMITS), 1.0)
+    assert_allclose(servo_map.to_pwm_us(hi, LIMITS), 2000.0)
+    assert_allclose(servo_map.to_pwm_us(lo, LIMITS), 1000.0)
+
+
+@pytest.mark.parametrize("bad", [math.nan, math.inf, 1.5, -1.01])
+def test_bad_command_values_are_refused(bad: float) -> None:
+    msg = command_message(1, np.zeros(4), LIMITS, armed=True)
+    msg.controls = list(msg.controls)
+    msg.controls[2] = bad
+    assert decode_command(msg, LIMITS) is None
+
+
+def test_out_of_order_state_is_dropped_and_a_repeat_is_answered() -> None:
+    asm = StateAssembler()
+    x = np.zeros(12)
+    for t_us in (20_000, 20_000, 10_000):
+        for m in state_messages(t_us, x):
+            s = asm.feed(m)
+    assert asm.out_of_order == 1 and asm.last_t_us == 20_000
+    assert s is None
+
+
+def test_udp_link_survives_garbage_and_counts_it() -> None:
+    with MavlinkUdp((LOOPBACK, 0)) as rx, MavlinkUdp((LOOPBACK, 0), rx.local, system_id=1) as tx:
+        good = tx.pack(mavlink2.MAVLink_heartbeat_message(4, 0, 0, 0, 3, 3))
+        flipped = bytearray(good)
+        flipped[12] ^= 0xFF  # payload byte: CRC no longer matches
+        datagrams = [b"\xfd\x09", bytes(flipped), b"\x00" * 300, good[:-3], good]
+        for d in datagrams:
+            tx.send_bytes(d)
+        got = rx.recv(timeout_s=1.0)
+        for _ in range(20):
+            if rx.stats.rx_datagrams >= len(datagrams):
+                break
+            got += rx.recv(timeout_s=0.1)
+        assert [m.get_type() for m, _ in got] == ["HEARTBEAT"]
+        assert rx.stats.rx_bad >= 2
+
+
+def test_wrong_system_is_dropped() -> None:
+    with MavlinkUdp((LOOPBACK, 0), accept_system=1) as rx, MavlinkUdp(
+        (LOOPBACK, 0), rx.local, system_id=7
+    ) as tx:
+        tx.send(mavlink2.MAVLink_heartbeat_message(4, 0, 0, 0, 3, 3))
+        assert rx.recv(timeout_s=1.0) == []
+        assert rx.stats.rx_foreign == 1
+
+
+def test_only_loopback_and_busy_ports_are_clear_errors() -> None:
+    with pytest.raises(ValueError, match="loopback"):
+        MavlinkUdp((LOOPBACK, 0), ("10.0.0.1", 14550))
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind((LOOPBACK, 0))
+        with pytest.raises(PortBusyError, match="busy"):
+            MavlinkUdp((LOOPBACK, s.getsockname()[1]))
+
+
+@pytest.fixture(scope="module")
+def paper() -> Scenario:
+    return Scenario.load("paper")
+
+
+def _runner(paper: Scenario) -> tuple[Runner, TLController, Flight]:
+    ctrl = TLController(paper.airframe, paper.gains, 100.0)
+    flight = Flight()
+    sim = SimLink((LOOPBACK, 0), (LOOPBACK, 9), LIMITS)
+    return Runner(ctrl, flight, sim, RunnerConfig()), ctrl, flight
+
+
+def test_disarmed_gives_zero_pitch_and_no_integration(paper: Scenario) -> None:
+    runner, ctrl, _ = _runner(paper)
+    x = np.zeros(12)
+    for k in range(200):
+        u = runner.tick(k * 0.01, x)
+        assert np.all(u == 0.0)
+    assert np.all(ctrl.state == 0.0)
+    runner.sim.close()
+
+
+def test_landed_with_ground_command_does_not_wind_up(paper: Scenario) -> None:
+    runner, ctrl, flight = _runner(paper)
+    flight.start(StraightLine(start_nwu_m=(1.0, -1.0, 0.0), duration_s=10.0), 0.0)
+    flight.arm()
+    x = np.zeros(12)  # on the ground, 1.4 m from a command that is also on the ground
+    for k in range(500):
+        runner.tick(k * 0.01, x)
+    assert np.all(ctrl.state[S_I1 : S_I4 + 3] == 0.0)
+    runner.sim.close()
