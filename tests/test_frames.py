@@ -222,3 +222,9 @@ def test_body_rates_map_like_vectors(e: tuple[float, float, float], om: tuple[fl
     lhs = T @ rt_dot @ T
     rhs = rot_body_to_earth(*frames.euler_flu_to_frd(e)) @ sk_frd
     assert_allclose(lhs, rhs, atol=1e-9 * (1 + np.abs(w).max()))
+
+
+@pytest.mark.parametrize("q", [(0.0, 0.0, 0.0, 0.0), (float("nan"), 0.0, 0.0, 1.0)])
+def test_a_zero_or_nan_quaternion_is_a_clear_error(q: tuple[float, float, float, float]) -> None:
+    with pytest.raises(ValueError, match="quaternion"):
+        frames.quaternion_to_euler(q)
