@@ -16,15 +16,17 @@ import numpy as np
 
 from autopilot.flight_log import write_flight_tlog
 from autopilot.geo import GeoPoint
+from autopilot.links.can_servo import CanServoSender
 from autopilot.links.mavlink_gcs import GcsConfig, GcsService
 from autopilot.links.mavlink_sim import SimLink
 from autopilot.modes import Flight
 from autopilot.params_table import ParamTable
-from autopilot.runner import Recorder, Runner, RunnerConfig, TickHook
+from autopilot.runner import Recorder, Runner, RunnerConfig, ServoOutput, TickHook
 from autopilot.scenario import Scenario
 from autopilot.tlc.controller import TLController
 from heli_sitl.config import ConfigError
 from heli_sitl.mavlink_link import LOOPBACK, PortBusyError
+from heli_sitl.servo_link import add_servo_args, load_servo_link, with_overrides
 from heli_sitl.servo_map import limits_array
 
 log = logging.getLogger("autopilot")
@@ -44,6 +46,9 @@ def build_parser() -> argparse.ArgumentParser:
         "--autostart", action="store_true", help="arm and fly the scenario trajectory at once"
     )
     p.add_argument("--out", default=None, help="write run.csv, summary.json, flight.tlog here")
+    s = p.add_argument_group("servo link")
+    add_servo_args(s)
+    s.add_argument("--can-node-id", type=int, default=None, help="DroneCAN node id")
     g = p.add_argument_group("GCS link (ground stations on 14550, API clients on 14540)")
     g.add_argument("--no-gcs", action="store_true", help="no ground-station link")
     g.add_argument("--gcs-port", type=int, default=14550)
@@ -117,6 +122,15 @@ def make_gcs(args: argparse.Namespace, sc: Scenario, ctrl: TLController, limits:
     return GcsService(cfg, table, lambda _t: None, limits)
 
 
+def can_output(sender: CanServoSender) -> ServoOutput:
+    """Pitches to DroneCAN; there is no arming on the servo bus (disarmed sends zeros)."""
+
+    def send(t_us: int, pitches_rad: np.ndarray, armed: bool) -> None:
+        sender.send(pitches_rad, t_us / 1e6)
+
+    return send
+
+
 def run(args: argparse.Namespace, stop: threading.Event) -> int:
     sc = Scenario.load(args.scenario)
     rate = args.rate_hz or sc.run.rate_hz
@@ -134,10 +148,17 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
     recorder = Recorder() if out else None
     t0_unix_us = int(time.time() * 1e6)
     gcs = None if args.no_gcs else make_gcs(args, sc, ctrl, limits)
+    servo = with_overrides(load_servo_link(args.links), args.servo_link, args.can_bus, args.actuator_ids)
+    can = None
+    if servo.link == "can":
+        can = CanServoSender(servo.can_bus, node_id=args.can_node_id or servo.node_id,
+                             actuator_ids=servo.actuator_ids)  # fmt: skip
     hooks: list[TickHook] = [] if gcs is None else [gcs]
     try:
         with SimLink((LOOPBACK, args.port), (LOOPBACK, args.plant_port), limits) as sim:
-            runner = Runner(ctrl, flight, sim, cfg, hooks, recorder)
+            runner = Runner(ctrl, flight, sim, cfg, hooks, recorder, servo_out=None)
+            if can is not None:
+                runner.servo_out = can_output(can)
             if gcs is not None:
                 gcs.apply_params = lambda table: runner.between_ticks(
                     lambda: apply_params(ctrl, table)
@@ -148,12 +169,15 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
     finally:
         if gcs is not None:
             gcs.close()
+        if can is not None:
+            can.close()
     if out and recorder is not None:
         out.mkdir(parents=True, exist_ok=True)
         record = recorder.record(runner.wall_s, {
             "mode": args.mode, "rate_hz": rate, "feedforward": ctrl.feedforward.value,
             "loop": stats.summary(), "sim_link": link,
             "gcs_link": gcs.stats() if gcs is not None else None,
+            "servo_link": servo.link, "can": dict(can.stats) if can is not None else None,
         })  # fmt: skip
         record.write_csv(out / "run.csv")
         write_flight_tlog(out / "flight.tlog", record, limits, t0_unix_us)

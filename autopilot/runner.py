@@ -29,6 +29,8 @@ LOCKSTEP_SPIN_S = 0.002  # poll this long before sleeping (see MavlinkUdp.wait)
 
 # (t_s, x, ref or None, pitches, flight) -> None: telemetry, logging, GCS services
 TickHook = Callable[[float, FloatArray, FloatArray | None, FloatArray, Flight], None]
+# (t_us of the state answered, pitches [rad], armed) -> None: where the command goes
+ServoOutput = Callable[[int, FloatArray, bool], None]
 
 
 @dataclass(frozen=True)
@@ -102,12 +104,14 @@ class Runner:
         cfg: RunnerConfig,
         hooks: Sequence[TickHook] | None = None,
         recorder: Recorder | None = None,
+        servo_out: ServoOutput | None = None,
     ) -> None:
         self.ctrl = ctrl
         self.flight = flight
         self.sim = sim
         self.cfg = cfg
         self.hooks = list(hooks or [])
+        self.servo_out: ServoOutput = servo_out or sim.send_pitches
         self.recorder = recorder
         self.stats = LoopStats()
         self.u = np.zeros(N_PITCH)
@@ -170,13 +174,13 @@ class Runner:
             last_state = now
             self._stale(False)
             if s.t_us == last_t_us:  # re-sent by the plant: our answer was lost, send it again
-                self.sim.send_pitches(s.t_us, self.u, self.flight.armed)
+                self.servo_out(s.t_us, self.u, self.flight.armed)
                 continue
             t_s = s.t_us / 1e6
             if self._done(t_s):
                 break
             u = self.tick(t_s, s.x)
-            self.sim.send_pitches(s.t_us, u, self.flight.armed)
+            self.servo_out(s.t_us, u, self.flight.armed)
             last_t_us = s.t_us
 
     def _run_realtime(self, stop: threading.Event) -> None:
@@ -221,5 +225,5 @@ class Runner:
                 break
             if not self.stats.plant_stale:
                 self.u = self.tick(t_s, latest.x)
-            self.sim.send_pitches(latest.t_us, self.u, self.flight.armed)
+            self.servo_out(latest.t_us, self.u, self.flight.armed)
             k += 1

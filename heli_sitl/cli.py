@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 
 from heli_sitl.config import ConfigError
+from heli_sitl.servo_link import add_servo_args
 
 
 def _simulate(args: argparse.Namespace) -> int:
@@ -63,6 +64,7 @@ def _run(args: argparse.Namespace) -> int:
     from heli_sitl.mavlink_link import LOOPBACK, MavlinkUdp, PortBusyError
     from heli_sitl.plant import Plant
     from heli_sitl.scenario_state import load_vehicle
+    from heli_sitl.servo_link import load_servo_link, with_overrides
     from heli_sitl.sim import PlantServer, SimConfig
 
     logging.basicConfig(
@@ -83,8 +85,20 @@ def _run(args: argparse.Namespace) -> int:
     except PortBusyError as exc:
         print(f"heli-sitl: {exc.strerror}", file=sys.stderr)
         return 3
-    with link:
-        stats = PlantServer(plant, link, cfg).run(stop)
+    servo = with_overrides(load_servo_link(args.links), args.servo_link, args.can_bus, args.actuator_ids)
+    can = None
+    if servo.link == "can":
+        from heli_sitl.links.can_servo import CanServoEndpoint
+
+        can = CanServoEndpoint(servo.can_bus, limits=airframe.limits, actuator_ids=servo.actuator_ids,
+                               timeout_s=servo.timeout_s)  # fmt: skip
+    try:
+        with link:
+            stats = PlantServer(plant, link, cfg, can).run(stop)
+    finally:
+        if can is not None:
+            stats.extra["can"] = dict(can.stats)
+            can.close()
     if args.verbose:
         print(json.dumps({**stats.__dict__, "link": link.stats.as_dict()}), file=sys.stderr)
     return 0
@@ -116,7 +130,8 @@ def _demo(args: argparse.Namespace) -> int:
 
     out = Path(args.out)
     opts = DemoOptions(mode=args.mode, rate_hz=args.rate_hz, scenario=args.scenario, out=out,
-                       duration_s=args.duration_s)  # fmt: skip
+                       duration_s=args.duration_s, servo_link=args.servo_link,
+                       can_bus=args.can_bus)  # fmt: skip
     try:
         summary = run_demo(opts)
     except DemoError as exc:
@@ -163,6 +178,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--port", type=int, default=4560, help="UDP port to bind")
     r.add_argument("--autopilot-port", type=int, default=4561)
     r.add_argument("--timeout-s", type=float, default=1.0, help="autopilot silent after this")
+    add_servo_args(r)
     r.add_argument("--hold-until-armed", action="store_true",
                    help="in-air start: do not step until the autopilot arms")
     r.add_argument("-v", "--verbose", action="store_true")
@@ -187,6 +203,8 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--rate-hz", type=float, default=100.0)
     d.add_argument("--scenario", default="paper")
     d.add_argument("--duration-s", type=float, default=None)
+    d.add_argument("--servo-link", choices=("mavlink", "can"), default=None)
+    d.add_argument("--can-bus", default=None, help="python-can bus spec for --servo-link can")
     d.add_argument("--out", required=True)
     d.set_defaults(func=_demo)
     return p

@@ -39,6 +39,8 @@ class DemoOptions:
     plant_port: int = 0  # 0: pick free ports
     autopilot_port: int = 0
     timeout_s: float | None = None  # whole-demo wall-clock limit
+    servo_link: str | None = None  # None: configs/links.toml
+    can_bus: str | None = None
     extra_plant_args: tuple[str, ...] = ()
     extra_autopilot_args: tuple[str, ...] = ()
 
@@ -75,11 +77,19 @@ def run_demo(opts: DemoOptions) -> dict[str, object]:
     pp = opts.plant_port or free_udp_port()
     ap = opts.autopilot_port or free_udp_port()
     common = ["--mode", opts.mode, "--rate-hz", str(opts.rate_hz), "--scenario", opts.scenario]
+    if opts.servo_link:
+        common += ["--servo-link", opts.servo_link]
+    if opts.can_bus:
+        common += ["--can-bus", opts.can_bus]
     if opts.duration_s is not None:
         common += ["--duration-s", str(opts.duration_s)]
     plant_cmd = _cmd("heli_sitl.cli") + ["run", *common, "--port", str(pp),
                                          "--autopilot-port", str(ap), *opts.extra_plant_args]
+    # the GCS link binds free local ports; it still sends to 14550/14540, so a running
+    # QGroundControl shows the demo flight
     ap_cmd = _cmd("autopilot.cli") + [*common, "--port", str(ap), "--plant-port", str(pp),
+                                      "--local-gcs-port", str(free_udp_port()),
+                                      "--local-api-port", str(free_udp_port()),
                                       "--autostart", "--out", str(opts.out),
                                       *opts.extra_autopilot_args]  # fmt: skip
     procs: list[tuple[str, subprocess.Popen[bytes]]] = []

@@ -15,6 +15,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
+from heli_sitl.links.can_servo import CanServoEndpoint
 from heli_sitl.mavlink_link import MavlinkUdp, mavlink2
 from heli_sitl.plant import Plant
 from heli_sitl.servo_map import limits_array
@@ -48,9 +49,18 @@ class SimStats:
 
 
 class PlantServer:
-    def __init__(self, plant: Plant, link: MavlinkUdp, cfg: SimConfig) -> None:
+    """``can``: take servo commands from a DroneCAN endpoint instead of HIL_ACTUATOR_CONTROLS
+    (the state still goes out on the MAVLink sim link). CAN commands carry no time stamp:
+    in lockstep the first command applied after a state is published answers that state."""
+
+    def __init__(
+        self, plant: Plant, link: MavlinkUdp, cfg: SimConfig, can: CanServoEndpoint | None = None
+    ) -> None:
+        if can is not None and cfg.hold_until_armed:
+            raise ValueError("hold_until_armed needs the MAVLink servo link (CAN has no arming flag)")
         self.plant = plant
         self.link = link
+        self.can = can
         self.cfg = cfg
         self.limits = limits_array(plant.airframe.limits.as_tuple())
         self.stats = SimStats()
@@ -82,7 +92,17 @@ class PlantServer:
             log.info("autopilot armed: the clock starts")
         return self._waiting_for_arm
 
-    def _commands(self) -> list[tuple[int, Any, bool]]:
+    def _wait(self, timeout_s: float) -> None:
+        if self.can is None:
+            self.link.wait(timeout_s, spin_s=LOCKSTEP_SPIN_S)
+
+    def _commands(self, wait_s: float = 0.0) -> list[tuple[int, Any, bool]]:
+        if self.can is not None:
+            before = self.can.stats["commands_applied"]
+            held = self.can.poll(time.monotonic(), wait_s=wait_s)
+            if held is None or self.can.stats["commands_applied"] == before:
+                return []
+            return [(self.t_us, held, True)]
         out = []
         for msg, _ in self.link.recv():
             if msg.get_type() != "HIL_ACTUATOR_CONTROLS":
@@ -106,9 +126,10 @@ class PlantServer:
         self._publish()
         sent_at = last_cmd = time.monotonic()
         while not stop.is_set() and not self._end_reached():
-            self.link.wait(min(self.cfg.resend_s, 0.05), spin_s=LOCKSTEP_SPIN_S)
+            wait_s = min(self.cfg.resend_s, 0.05)
+            self._wait(wait_s)
             applied = False
-            for t_us, u, armed in self._commands():
+            for t_us, u, armed in self._commands(wait_s if self.can is not None else 0.0):
                 if t_us != self.t_us:
                     self.stats.stale_commands += 1
                     continue
@@ -148,7 +169,9 @@ class PlantServer:
                 self.plant.set_pitches(u)
                 break
             self._publish()
-            self.link.wait(0.05)
+            self._wait(0.05)
+            if self.can is not None:
+                time.sleep(0.01)
         start = time.monotonic()
         last_cmd = start
         k = 0

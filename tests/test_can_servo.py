@@ -8,13 +8,11 @@ corrupted, duplicated) on a python-can ``virtual`` bus; the only fake is a bus t
 
 from __future__ import annotations
 
-import importlib.util
 import itertools
 import json
 import logging
 import math
 import os
-import shutil
 import subprocess
 import sys
 import time
@@ -27,6 +25,7 @@ import dronecan
 import numpy as np
 import pytest
 from dronecan import transport
+from netns import unshare_reason
 
 from autopilot.links.can_servo import CanServoSender
 from heli_sitl.links.can_bus import (
@@ -598,24 +597,11 @@ def _udp_namespace_main(out: Path, parent_netns: str) -> int:
                 p.kill()
 
 
-def _unshare_reason() -> str | None:
-    if not sys.platform.startswith("linux"):
-        return "network namespaces are Linux-only"
-    if shutil.which("unshare") is None or shutil.which("ip") is None:
-        return "needs unshare (util-linux) and ip (iproute2)"
-    if importlib.util.find_spec("msgpack") is None:
-        return "python-can's udp_multicast needs msgpack (pip install 'python-can[multicast]')"
-    probe = subprocess.run(["unshare", "--net", "true"], capture_output=True, timeout=10)
-    if probe.returncode != 0:
-        return f"cannot make a network namespace (unshare --net: {probe.stderr.decode().strip()})"
-    return None
-
-
 @pytest.mark.slow
 def test_two_processes_over_udp_multicast_in_private_netns(tmp_path: Path) -> None:
     """Sender and servo endpoint in two processes on one host: udp_multicast on the IPv4
     group over ``lo`` of a network namespace made for this test (never the host's)."""
-    reason = _unshare_reason()
+    reason = unshare_reason()
     if reason is not None:
         pytest.skip(reason)
     me = str(Path(__file__).resolve())

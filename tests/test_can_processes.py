@@ -1,0 +1,35 @@
+"""`heli-sitl demo --servo-link can`: plant and autopilot as processes, servos on DroneCAN over
+python-can udp_multicast, inside a network namespace this test makes (never the host's)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from netns import NETNS_SETUP, unshare_reason
+
+pytestmark = pytest.mark.slow
+
+
+def test_demo_over_can_flies_the_paper_scenario(tmp_path: Path) -> None:
+    reason = unshare_reason()
+    if reason is not None:
+        pytest.skip(reason)
+    demo = (
+        f"{sys.executable} -m heli_sitl.cli demo --mode lockstep --servo-link can "
+        f"--can-bus udp_multicast --out {tmp_path}"
+    )
+    proc = subprocess.run(
+        ["unshare", "--net", "--", "bash", "-c", f"{NETNS_SETUP} && {demo}"],
+        capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    s = json.loads((tmp_path / "summary.json").read_text())
+    assert s["servo_link"] == "can"
+    assert s["rms_pos_err_m"]["45-120"] <= 0.05
+    assert s["max_pos_err_40_45_m"] <= 0.3
+    assert s["can"]["send_errors"] == 0 and s["can"]["commands_sent"] >= 12001
+    assert s["can"]["node_status_sent"] >= 120  # 1 Hz of flight time
