@@ -19,10 +19,6 @@ import numpy as np
 from autopilot.metrics import FlightRecord
 from autopilot.scenario import Scenario
 from autopilot.tlc.controller import (
-    D_PHI_C,
-    D_PSI_C,
-    D_SAT_MASK,
-    D_THETA_C,
     N_DIAG,
     TLCConstants,
     TLController,
@@ -115,15 +111,6 @@ def simulate(
         if progress is not None:
             progress(k1 - 1, n)
     wall = time.perf_counter() - wall0
-    return FlightRecord(
-        t_s=t,
-        x=xs,
-        ref=refs,
-        pitches=us,
-        psi_cmd=diags[:, D_PSI_C].copy(),
-        att_cmd=diags[:, [D_PHI_C, D_THETA_C]].copy(),
-        saturated=diags[:, D_SAT_MASK] != 0,
-        wall_s=wall,
-        extra={"rate_hz": rate_hz, "feedforward": ctrl.feedforward.value,
-               "plant_substeps": plant.substeps},
-    )  # fmt: skip
+    extra = {"rate_hz": rate_hz, "feedforward": ctrl.feedforward.value,
+             "plant_substeps": plant.substeps}  # fmt: skip
+    return FlightRecord.from_ticks(t, xs, refs, us, diags, wall, extra)

@@ -33,6 +33,22 @@ class FlightRecord:
     att_cmd: FloatArray | None = None  # (N, 2) commanded roll, pitch where known
     extra: dict[str, Any] = field(default_factory=dict)
 
+    @classmethod
+    def from_ticks(
+        cls, t_s: FloatArray, x: FloatArray, ref: FloatArray, pitches: FloatArray,
+        diags: FloatArray, wall_s: float, extra: dict[str, Any],
+    ) -> FlightRecord:  # fmt: skip
+        """From per-tick arrays, ``diags`` being the controller's diagnostics vectors."""
+        from autopilot.tlc.controller import D_PHI_C, D_PSI_C, D_SAT_MASK, D_THETA_C
+
+        return cls(
+            t_s=t_s, x=x, ref=ref, pitches=pitches,
+            psi_cmd=diags[:, D_PSI_C].copy(),
+            att_cmd=diags[:, [D_PHI_C, D_THETA_C]].copy(),
+            saturated=diags[:, D_SAT_MASK] != 0,
+            wall_s=wall_s, extra=extra,
+        )  # fmt: skip
+
     @property
     def pos_err_m(self) -> FloatArray:
         return np.asarray(np.linalg.norm(self.ref[:, 0:3] - self.x[:, POS], axis=1))

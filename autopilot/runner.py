@@ -20,7 +20,7 @@ import numpy as np
 from autopilot.links.mavlink_sim import SimLink
 from autopilot.metrics import FlightRecord
 from autopilot.modes import Flight
-from autopilot.tlc.controller import D_PHI_C, D_PSI_C, D_SAT_MASK, D_THETA_C, OK, TLController
+from autopilot.tlc.controller import N_DIAG, OK, TLController
 from heli_sitl.sim_protocol import StateSample
 from heli_sitl.state import N_PITCH, FloatArray
 
@@ -72,27 +72,21 @@ class Recorder:
     """The flight as the controller saw it, one row per tick, for run.csv and summary.json."""
 
     def __init__(self) -> None:
-        self.rows: list[tuple[float, FloatArray, FloatArray, FloatArray, float, float, float, bool]] = []
+        self.rows: list[tuple[float, FloatArray, FloatArray, FloatArray, FloatArray]] = []
 
     def add(self, t: float, x: FloatArray, ref: FloatArray, u: FloatArray, diag: FloatArray) -> None:
-        self.rows.append(
-            (t, x.copy(), ref.copy(), u.copy(), diag[D_PSI_C], diag[D_PHI_C], diag[D_THETA_C],
-             diag[D_SAT_MASK] != 0)
-        )  # fmt: skip
+        self.rows.append((t, x.copy(), ref.copy(), u.copy(), diag.copy()))
 
     def record(self, wall_s: float, extra: dict[str, Any]) -> FlightRecord:
         r = self.rows
-        return FlightRecord(
-            t_s=np.array([v[0] for v in r]),
-            x=np.array([v[1] for v in r]).reshape(-1, 12),
-            ref=np.array([v[2] for v in r]).reshape(-1, 9),
-            pitches=np.array([v[3] for v in r]).reshape(-1, N_PITCH),
-            psi_cmd=np.array([v[4] for v in r]),
-            att_cmd=np.array([(v[5], v[6]) for v in r]).reshape(-1, 2),
-            saturated=np.array([v[7] for v in r], dtype=bool),
-            wall_s=wall_s,
-            extra=extra,
-        )
+        return FlightRecord.from_ticks(
+            np.array([v[0] for v in r]),
+            np.array([v[1] for v in r]).reshape(-1, 12),
+            np.array([v[2] for v in r]).reshape(-1, 9),
+            np.array([v[3] for v in r]).reshape(-1, N_PITCH),
+            np.array([v[4] for v in r]).reshape(-1, N_DIAG),
+            wall_s, extra,
+        )  # fmt: skip
 
 
 class Runner:
@@ -116,6 +110,7 @@ class Runner:
         self.stats = LoopStats()
         self.u = np.zeros(N_PITCH)
         self.wall_s = 0.0
+        self._wall0: float | None = None
         self._between: list[Callable[[], None]] = []
 
     def between_ticks(self, fn: Callable[[], None]) -> None:
@@ -123,6 +118,8 @@ class Runner:
         self._between.append(fn)
 
     def tick(self, t_s: float, x: FloatArray) -> FloatArray:
+        if self._wall0 is None:
+            self._wall0 = time.perf_counter()
         while self._between:
             self._between.pop(0)()
         ref = self.flight.reference(t_s, x)
@@ -154,12 +151,14 @@ class Runner:
         self.stats.plant_stale = stale
 
     def run(self, stop: threading.Event) -> LoopStats:
-        wall0 = time.perf_counter()
+        """Fly until stopped or the duration is over; ``wall_s`` counts from the first tick
+        (not the wait for a starting plant)."""
         if self.cfg.mode == "lockstep":
             self._run_lockstep(stop)
         else:
             self._run_realtime(stop)
-        self.wall_s = time.perf_counter() - wall0
+        if self._wall0 is not None:
+            self.wall_s = time.perf_counter() - self._wall0
         return self.stats
 
     def _run_lockstep(self, stop: threading.Event) -> None:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from heli_sitl import frames, servo_map
 from heli_sitl.mavlink_link import Message, mavlink2
-from heli_sitl.sim_protocol import state_messages
+from heli_sitl.sim_protocol import state_fields
 from heli_sitl.state import FloatArray
 
 # POSITION_TARGET_LOCAL_NED type_mask: position, velocity and acceleration used; yaw, yaw rate not
@@ -14,8 +14,13 @@ TYPE_MASK_PVA = (
 
 
 def attitude_and_position(t_us: int, x: FloatArray) -> list[Message]:
-    """ATTITUDE and LOCAL_POSITION_NED (the same encoding the plant publishes)."""
-    return state_messages(t_us, x)[1:]
+    """ATTITUDE and LOCAL_POSITION_NED (the same fields the plant publishes)."""
+    f = state_fields(x)
+    t_ms = t_us // 1000
+    return [
+        mavlink2.MAVLink_attitude_message(t_ms, *f.att),
+        mavlink2.MAVLink_local_position_ned_message(t_ms, *f.pos_ned_m, *f.vel_ned_m_s),
+    ]
 
 
 def position_target(t_us: int, ref: FloatArray) -> Message:

@@ -21,7 +21,7 @@ class Row(NamedTuple):
 
 BenchFn = Callable[[], list[Row]]
 REGISTRY: list[tuple[str, BenchFn]] = []
-MODULES = ("benchmarks.bench_sim",)
+MODULES = ("benchmarks.bench_sim", "benchmarks.bench_can", "benchmarks.bench_processes")
 
 
 def bench(title: str) -> Callable[[BenchFn], BenchFn]:

@@ -22,6 +22,8 @@ import numpy as np
 from autopilot.closed_loop import simulate
 from autopilot.links.can_servo import CanServoSender, fly_over_can
 from autopilot.scenario import Scenario
+from benchmarks import Row as TableRow
+from benchmarks import bench
 from heli_sitl.links.can_bus import CanBusConfig
 from heli_sitl.links.can_servo import CanServoEndpoint
 from heli_sitl.links.dronecan_codec import ArrayCommandEncoder, float16_round
@@ -99,3 +101,8 @@ def bench_can(n_ticks: int = 3000, closed_loop: bool = True) -> list[Row]:
 if __name__ == "__main__":
     for name, value, unit, target in bench_can():
         print(f"{name:34s} {value:12.6g} {unit:4s} target {target}")
+
+
+@bench("servo link, DroneCAN")
+def bench_can_default() -> list[TableRow]:
+    return [TableRow(name, value, unit, target) for name, value, unit, target in bench_can()]

@@ -14,7 +14,8 @@ from typing import TypeAlias
 
 import numpy as np
 
-from heli_sitl.kinematics import wrap_pi
+from heli_sitl._jit import njit
+from heli_sitl.kinematics import rot_body_to_earth, wrap_pi
 from heli_sitl.state import EULER, N_STATE, OMEGA, POS, VEL, FloatArray
 
 Vec3 = tuple[float, float, float]
@@ -90,4 +91,48 @@ def state_ned_to_nwu(
     x[VEL] = frd_to_flu(vel_frd_m_s)
     x[EULER] = euler_frd_to_flu(euler_frd_rad)
     x[OMEGA] = frd_to_flu(omega_frd_rad_s)
+    return x
+
+
+# -- compiled whole-state conversions for the links' hot path ---------------------------
+# NED_FIELDS layout: roll, pitch, yaw, p, q, r (FRD), qw, qx, qy, qz, north, east, down,
+# v_north, v_east, v_down (earth-frame velocity, as LOCAL_POSITION_NED carries it)
+N_NED_FIELDS = 16
+
+
+@njit
+def state_to_ned_fields(x: FloatArray) -> FloatArray:
+    """Plant state (NWU/FLU) -> the NED/FRD fields of ATTITUDE, LOCAL_POSITION_NED and the
+    HIL_STATE_QUATERNION quaternion, in one compiled call."""
+    out = np.empty(N_NED_FIELDS)
+    phi, theta, psi = x[EULER.start], x[EULER.start + 1], x[EULER.start + 2]
+    roll, pitch, yaw = phi, -theta, wrap_pi(-psi)
+    out[0], out[1], out[2] = roll, pitch, yaw
+    out[3], out[4], out[5] = x[OMEGA.start], -x[OMEGA.start + 1], -x[OMEGA.start + 2]
+    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
+    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
+    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
+    out[6] = cr * cp * cy + sr * sp * sy
+    out[7] = sr * cp * cy - cr * sp * sy
+    out[8] = cr * sp * cy + sr * cp * sy
+    out[9] = cr * cp * sy - sr * sp * cy
+    out[10], out[11], out[12] = x[POS.start], -x[POS.start + 1], -x[POS.start + 2]
+    v = rot_body_to_earth(phi, theta, psi) @ x[VEL]
+    out[13], out[14], out[15] = v[0], -v[1], -v[2]
+    return out
+
+
+@njit
+def state_from_ned_fields(
+    roll: float, pitch: float, yaw: float, p: float, q: float, r: float,
+    north: float, east: float, down: float, vn: float, ve: float, vd: float,
+) -> FloatArray:  # fmt: skip
+    """ATTITUDE and LOCAL_POSITION_NED fields (NED/FRD) -> plant state (NWU/FLU)."""
+    x = np.empty(N_STATE)
+    phi, theta, psi = roll, -pitch, wrap_pi(-yaw)
+    x[POS.start], x[POS.start + 1], x[POS.start + 2] = north, -east, -down
+    x[EULER.start], x[EULER.start + 1], x[EULER.start + 2] = phi, theta, psi
+    x[OMEGA.start], x[OMEGA.start + 1], x[OMEGA.start + 2] = p, -q, -r
+    v_nwu = np.array([vn, -ve, -vd])
+    x[VEL] = rot_body_to_earth(phi, theta, psi).T @ v_nwu
     return x

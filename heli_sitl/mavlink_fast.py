@@ -84,14 +84,14 @@ _HDR: Final = struct.Struct("<BBBBBBHB")
 _U16: Final = struct.Struct("<H")
 _SIZE_HIL: Final = _HIL.size
 _SIZE_ATT: Final = _ATT.size
+_SIZE_LPN: Final = _LPN.size
 _SIZE_ACT: Final = _ACT.size
-
-# Byte-at-a-time table for CRC-16/MCRF4XX (reflected poly 0x1021 = 0x8408, init 0xFFFF, no
-# final xor): used to fold in the one CRC_EXTRA byte without a second C call, and as the
-# whole CRC when fastcrc is missing.
 
 
 def _crc_table() -> tuple[int, ...]:
+    """Byte-at-a-time table for CRC-16/MCRF4XX (reflected poly 0x1021 = 0x8408, init 0xFFFF,
+    no final xor): it folds in the one CRC_EXTRA byte cheaper than a second C call, and is
+    the whole CRC when fastcrc is missing."""
     table = []
     for byte in range(256):
         c = byte
@@ -124,6 +124,8 @@ except ImportError:  # pragma: no cover - pymavlink 2.4.50 depends on fastcrc
     CRC_BACKEND = "python"
 
 
+# Decoded messages: header (msgid, sysid, compid, seq), then pymavlink's fields by pymavlink's
+# names in its ``fieldnames`` order, arrays as tuples.
 class HilStateQuaternion(NamedTuple):
     msgid: int
     sysid: int
@@ -301,7 +303,6 @@ class SimCodec:
         roll, pitch, yaw, p, q, r = att
         t_ms = t_us // 1000
         seq = self.seq
-        self.seq = (seq + 3) & 0xFF
         crc = crc16_mcrf4xx
         table = _CRC_TABLE
 
@@ -324,13 +325,14 @@ class SimCodec:
         body = bytes((len(pay), 0, 0, (seq + 2) & 0xFF)) + self._tail_lpn + pay
         c = crc(body, 0xFFFF)
         c = (c >> 8) ^ table[(c ^ _CRC_EXTRA_LPN) & 0xFF]
+        self.seq = (seq + 3) & 0xFF  # only now: a value that failed to pack used no number
         return b"".join((f1, f2, b"\xfd", body, _U16.pack(c)))
 
     def encode_actuators(self, t_us: int, controls: Iterable[float], mode: int, flags: int = 0) -> bytes:
         """One HIL_ACTUATOR_CONTROLS frame; ``controls`` must hold exactly 16 values."""
+        pay = _ACT.pack(t_us, flags, *controls, mode).rstrip(b"\0") or b"\0"
         seq = self.seq
         self.seq = (seq + 1) & 0xFF
-        pay = _ACT.pack(t_us, flags, *controls, mode).rstrip(b"\0") or b"\0"
         body = bytes((len(pay), 0, 0, seq)) + self._tail_act + pay
         c = crc16_mcrf4xx(body, 0xFFFF)
         c = (c >> 8) ^ _CRC_TABLE[(c ^ _CRC_EXTRA_ACT) & 0xFF]
@@ -374,14 +376,14 @@ class SimCodec:
                                         if n >= _SIZE_ATT
                                         else _ATT.unpack(data[p0:pend] + _PAD[_SIZE_ATT - n])
                                     )
-                                    out.append(_new(Attitude, (msgid, sysid, compid, seq, *t)))
+                                    out.append(_new(Attitude, (msgid, sysid, compid, seq) + t))
                                 elif msgid == MSG_ID_LOCAL_POSITION_NED:
                                     t = (
                                         _LPN.unpack_from(data, p0)
-                                        if n >= _SIZE_ATT
-                                        else _LPN.unpack(data[p0:pend] + _PAD[_SIZE_ATT - n])
+                                        if n >= _SIZE_LPN
+                                        else _LPN.unpack(data[p0:pend] + _PAD[_SIZE_LPN - n])
                                     )
-                                    out.append(_new(LocalPositionNed, (msgid, sysid, compid, seq, *t)))
+                                    out.append(_new(LocalPositionNed, (msgid, sysid, compid, seq) + t))
                                 elif msgid == MSG_ID_HIL_STATE_QUATERNION:
                                     t = (
                                         _HIL.unpack_from(data, p0)
@@ -391,7 +393,7 @@ class SimCodec:
                                     out.append(
                                         _new(
                                             HilStateQuaternion,
-                                            (msgid, sysid, compid, seq, t[0], t[1:5], *t[5:]),
+                                            (msgid, sysid, compid, seq, t[0], t[1:5]) + t[5:],
                                         )
                                     )
                                 else:  # HIL_ACTUATOR_CONTROLS; wire order: time, flags, controls, mode

@@ -17,11 +17,12 @@ import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import TracebackType
 from typing import Any, BinaryIO, TypeAlias
 
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import common as mavlink2
+
+from heli_sitl.closing import Closing
 
 __all__ = ["LOOPBACK", "Address", "MavlinkUdp", "Message", "PortBusyError", "TlogWriter", "mavlink2"]
 
@@ -60,7 +61,7 @@ def is_loopback(host: str) -> bool:
     return all(ipaddress.ip_address(i[4][0]).is_loopback for i in infos)
 
 
-class MavlinkUdp:
+class MavlinkUdp(Closing):
     """One UDP socket speaking MAVLink 2.
 
     ``local`` is bound; datagrams go to ``remote`` (fixed) or, when ``remote`` is None, to
@@ -104,13 +105,7 @@ class MavlinkUdp:
         self.local = self.sock.getsockname()
 
     # -- context manager -------------------------------------------------------------
-    def __enter__(self) -> MavlinkUdp:
-        return self
 
-    def __exit__(
-        self, et: type[BaseException] | None, ev: BaseException | None, tb: TracebackType | None
-    ) -> None:
-        self.close()
 
     def close(self) -> None:
         self.sock.close()
@@ -164,7 +159,12 @@ class MavlinkUdp:
 
     def recv(self, timeout_s: float = 0.0, spin_s: float = 0.0) -> list[tuple[Message, Address]]:
         """Every valid message already queued (waiting up to ``timeout_s`` for the first)."""
-        out: list[tuple[Message, Address]] = []
+        return [(m, addr) for data, addr in self.recv_datagrams(timeout_s, spin_s)
+                for m in self._parse(data)]  # fmt: skip
+
+    def recv_datagrams(self, timeout_s: float = 0.0, spin_s: float = 0.0) -> list[tuple[bytes, Address]]:
+        """Every datagram already queued, undecoded (for a caller with its own codec)."""
+        out: list[tuple[bytes, Address]] = []
         if timeout_s > 0 and not self.wait(timeout_s, spin_s):
             return out
         while True:
@@ -178,8 +178,7 @@ class MavlinkUdp:
             self.stats.rx_datagrams += 1
             if self.remote is None and addr not in self.peers:
                 self.peers.append(addr)
-            for msg in self._parse(data):
-                out.append((msg, addr))
+            out.append((data, addr))
 
     def _parse(self, data: bytes) -> list[Message]:
         # Each datagram stands alone: forget any partial bytes a bad datagram left behind.
@@ -225,7 +224,7 @@ def _finite_fields(m: Message) -> bool:
     return True
 
 
-class TlogWriter:
+class TlogWriter(Closing):
     """pymavlink telemetry log: each record is a big-endian uint64 unix time [us] + the packet."""
 
     def __init__(self, path: Path, system_id: int = 1, component_id: int = 1) -> None:
@@ -242,8 +241,4 @@ class TlogWriter:
     def close(self) -> None:
         self.fh.close()
 
-    def __enter__(self) -> TlogWriter:
-        return self
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()

@@ -16,13 +16,19 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from heli_sitl.links.can_servo import CanServoEndpoint
-from heli_sitl.mavlink_link import MavlinkUdp, mavlink2
+from heli_sitl.mavlink_fast import HilActuatorControls, SimCodec
+from heli_sitl.mavlink_link import MavlinkUdp
 from heli_sitl.plant import Plant
 from heli_sitl.servo_map import limits_array
-from heli_sitl.sim_protocol import decode_command, period_us, state_messages
+from heli_sitl.sim_protocol import (
+    MAV_MODE_FLAG_SAFETY_ARMED,
+    decode_command,
+    encode_state,
+    period_us,
+    receive,
+)
 
 log = logging.getLogger("heli_sitl.sim")
-MAV_MODE_FLAG_SAFETY_ARMED = int(mavlink2.MAV_MODE_FLAG_SAFETY_ARMED)
 LOCKSTEP_SPIN_S = 0.002  # poll this long before sleeping (see MavlinkUdp.wait)
 
 
@@ -65,12 +71,14 @@ class PlantServer:
         self.limits = limits_array(plant.airframe.limits.as_tuple())
         self.stats = SimStats()
         self.period_us = period_us(cfg.rate_hz)
+        self.codec = SimCodec(system_id=1, component_id=51)
         self.t_us = 0
         self._last_cmd_us = -1
         self._waiting_for_arm = cfg.hold_until_armed
 
     def _publish(self) -> None:
-        self.link.send(*state_messages(self.t_us, self.plant.x))
+        self.link.send_bytes(encode_state(self.codec, self.t_us, self.plant.x))
+        self.link.stats.tx_messages += 3
 
     def _end_reached(self) -> bool:
         """Stepped past the end (the state at t = duration is published and answered)."""
@@ -104,8 +112,8 @@ class PlantServer:
                 return []
             return [(self.t_us, held, True)]
         out = []
-        for msg, _ in self.link.recv():
-            if msg.get_type() != "HIL_ACTUATOR_CONTROLS":
+        for msg in receive(self.link, self.codec):
+            if not isinstance(msg, HilActuatorControls):
                 continue
             cmd = decode_command(msg, self.limits)
             if cmd is None:

@@ -11,34 +11,70 @@ limits (:mod:`heli_sitl.servo_map`), and ``mode`` carries MAV_MODE_FLAG_SAFETY_A
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
 from heli_sitl import frames, servo_map
-from heli_sitl.kinematics import rot_body_to_earth
-from heli_sitl.mavlink_link import Message, mavlink2
-from heli_sitl.state import EULER, N_PITCH, N_STATE, OMEGA, POS, VEL, FloatArray
+from heli_sitl.mavlink_fast import Decoded, SimCodec, hil_alt_vel
+from heli_sitl.mavlink_link import MavlinkUdp, Message, mavlink2
+from heli_sitl.state import N_PITCH, FloatArray
 
 
-def state_messages(t_us: int, x: FloatArray, g_m_s2: float = 9.81) -> list[Message]:
-    pos_ned, _, euler_frd, omega_frd = frames.state_nwu_to_ned(x)
-    rt = rot_body_to_earth(x[EULER][0], x[EULER][1], x[EULER][2])
-    vel_ned = frames.nwu_to_ned(rt @ x[VEL])
-    q = frames.euler_to_quaternion(*euler_frd)
+class StateFields(NamedTuple):
+    """What the three state messages carry, in NED/FRD."""
+
+    att: tuple[float, float, float, float, float, float]  # roll, pitch, yaw, p, q, r
+    quat: tuple[float, float, float, float]
+    alt_mm: int
+    vel_ned_cm_s: tuple[int, int, int]
+    pos_ned_m: tuple[float, float, float]
+    vel_ned_m_s: tuple[float, float, float]
+
+
+def state_fields(x: FloatArray) -> StateFields:
+    f = frames.state_to_ned_fields(x).tolist()
+    pos_ned, vel_ned = (f[10], f[11], f[12]), (f[13], f[14], f[15])
+    alt_mm, vel_cm = hil_alt_vel(pos_ned, vel_ned)
+    return StateFields((f[0], f[1], f[2], f[3], f[4], f[5]), (f[6], f[7], f[8], f[9]), alt_mm,
+                       vel_cm, pos_ned, vel_ned)  # fmt: skip
+
+
+def state_messages(t_us: int, x: FloatArray) -> list[Message]:
+    """The state as pymavlink messages (telemetry, logs); the sim link uses :func:`encode_state`."""
+    f = state_fields(x)
     t_ms = t_us // 1000
     hil = mavlink2.MAVLink_hil_state_quaternion_message(
-        t_us, q, omega_frd[0], omega_frd[1], omega_frd[2],
-        0, 0, int(round(-pos_ned[2] * 1000)),
-        _i16(vel_ned[0] * 100), _i16(vel_ned[1] * 100), _i16(vel_ned[2] * 100),
-        0, 0, 0, 0, 0,
-    )  # fmt: skip
-    att = mavlink2.MAVLink_attitude_message(t_ms, *euler_frd, *omega_frd)
-    lpn = mavlink2.MAVLink_local_position_ned_message(t_ms, *pos_ned, *vel_ned)
+        t_us, f.quat, *f.att[3:], 0, 0, f.alt_mm, *f.vel_ned_cm_s, 0, 0, 0, 0, 0
+    )
+    att = mavlink2.MAVLink_attitude_message(t_ms, *f.att)
+    lpn = mavlink2.MAVLink_local_position_ned_message(t_ms, *f.pos_ned_m, *f.vel_ned_m_s)
     return [hil, att, lpn]
 
 
-def _i16(v: float) -> int:
-    return int(max(-32768, min(32767, round(v))))
+def receive(link: MavlinkUdp, codec: SimCodec, timeout_s: float = 0.0, spin_s: float = 0.0) -> list[Decoded]:
+    """Decode every queued datagram with the fast codec; drop (and count in ``link.stats``)
+    frames that fail their CRC or length, unknown messages, and foreign system ids."""
+    bad0 = codec.bad_crc + codec.truncated + codec.garbage + codec.unknown + codec.unsupported
+    out: list[Decoded] = []
+    for data, _ in link.recv_datagrams(timeout_s, spin_s):
+        for m in codec.decode(data):
+            if link.accept_system is not None and m.sysid != link.accept_system:
+                link.stats.rx_foreign += 1
+                continue
+            out.append(m)
+    link.stats.rx_messages += len(out)
+    link.stats.rx_bad += (
+        codec.bad_crc + codec.truncated + codec.garbage + codec.unknown + codec.unsupported - bad0
+    )
+    return out
+
+
+def encode_state(codec: SimCodec, t_us: int, x: FloatArray) -> bytes:
+    """The same three messages, packed by the fast codec (byte-identical to pymavlink's)."""
+    f = state_fields(x)
+    return codec.encode_state(t_us, f.att, f.quat, 0, 0, f.alt_mm, f.vel_ned_cm_s, f.pos_ned_m,
+                              f.vel_ned_m_s)  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -77,23 +113,23 @@ class StateAssembler:
         if t_us < self.last_t_us:  # equal: a re-sent state, whose answer may have been lost
             self.out_of_order += 1
             return None
-        x = np.empty(N_STATE)
-        euler_flu = frames.euler_frd_to_flu((att.roll, att.pitch, att.yaw))
-        x[POS] = frames.ned_to_nwu((lpn.x, lpn.y, lpn.z))
-        x[EULER] = euler_flu
-        x[OMEGA] = frames.frd_to_flu((att.rollspeed, att.pitchspeed, att.yawspeed))
-        rt = rot_body_to_earth(euler_flu[0], euler_flu[1], euler_flu[2])
-        x[VEL] = rt.T @ np.array(frames.ned_to_nwu((lpn.vx, lpn.vy, lpn.vz)))
-        if not np.all(np.isfinite(x)):
+        x = frames.state_from_ned_fields(
+            att.roll, att.pitch, att.yaw, att.rollspeed, att.pitchspeed, att.yawspeed,
+            lpn.x, lpn.y, lpn.z, lpn.vx, lpn.vy, lpn.vz,
+        )  # fmt: skip
+        if not np.isfinite(x).all():
             return None
         self.last_t_us = t_us
         return StateSample(t_us, x)
 
 
+MAV_MODE_FLAG_SAFETY_ARMED = int(mavlink2.MAV_MODE_FLAG_SAFETY_ARMED)
+
+
 def command_message(t_us: int, pitches_rad: FloatArray, limits: FloatArray, armed: bool) -> Message:
     controls = [0.0] * 16
     controls[:N_PITCH] = [float(v) for v in servo_map.to_normalized(pitches_rad, limits)]
-    mode = mavlink2.MAV_MODE_FLAG_SAFETY_ARMED if armed else 0
+    mode = MAV_MODE_FLAG_SAFETY_ARMED if armed else 0
     return mavlink2.MAVLink_hil_actuator_controls_message(t_us, controls, mode, 0)
 
 

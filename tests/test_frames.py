@@ -228,3 +228,27 @@ def test_body_rates_map_like_vectors(e: tuple[float, float, float], om: tuple[fl
 def test_a_zero_or_nan_quaternion_is_a_clear_error(q: tuple[float, float, float, float]) -> None:
     with pytest.raises(ValueError, match="quaternion"):
         frames.quaternion_to_euler(q)
+
+
+@settings(max_examples=100)
+@given(
+    st.lists(st.floats(-50, 50), min_size=6, max_size=6),
+    st.tuples(st.floats(-1.4, 1.4), st.floats(-1.4, 1.4), st.floats(-6.3, 6.3)),
+    st.lists(st.floats(-5, 5), min_size=3, max_size=3),
+)
+def test_compiled_whole_state_conversion_matches_and_inverts(pv, euler, omega) -> None:  # type: ignore[no-untyped-def]
+    from heli_sitl.kinematics import rot_body_to_earth
+
+    x = np.array([*pv[:3], *pv[3:], *euler, *omega])
+    f = frames.state_to_ned_fields(x)
+    pos, _, eul, om = frames.state_nwu_to_ned(x)
+    np.testing.assert_allclose(f[0:3], eul, atol=1e-12)
+    np.testing.assert_allclose(f[3:6], om, atol=1e-12)
+    np.testing.assert_allclose(f[6:10], frames.euler_to_quaternion(*eul), atol=1e-12)
+    np.testing.assert_allclose(f[10:13], pos, atol=1e-12)
+    v_nwu = rot_body_to_earth(*euler) @ x[3:6]
+    np.testing.assert_allclose(f[13:16], frames.nwu_to_ned(v_nwu), atol=1e-9)
+    y = frames.state_from_ned_fields(*f[0:6], *f[10:16])
+    expect = x.copy()
+    expect[8] = frames.wrap_pi(expect[8])
+    np.testing.assert_allclose(y, expect, atol=1e-9)

@@ -23,7 +23,6 @@ import itertools
 import logging
 import math
 import time
-import types
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -33,7 +32,8 @@ import numpy.typing as npt
 
 from autopilot.metrics import FlightRecord
 from autopilot.scenario import Scenario
-from autopilot.tlc.controller import D_PHI_C, D_PSI_C, D_SAT_MASK, D_THETA_C, TLController
+from autopilot.tlc.controller import TLController
+from heli_sitl.closing import Closing
 from heli_sitl.links.can_bus import (
     CanBus,
     CanBusConfig,
@@ -74,7 +74,7 @@ SENDER_STAT_KEYS = (
 )
 
 
-class CanServoSender:
+class CanServoSender(Closing):
     """DroneCAN servo output; ``send(pitches_rad, t_s)`` once per control tick.
 
     ``bus`` is a config or spec string (opened here, closed by ``close``) or an open
@@ -139,16 +139,7 @@ class CanServoSender:
         if self._owns_bus:
             self.bus.close()
 
-    def __enter__(self) -> CanServoSender:
-        return self
 
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: types.TracebackType | None,
-    ) -> None:
-        self.close()
 
     def _send_status(self, t_s: float) -> None:
         # uptime counts from start_s; health shows whether commands failed since the last one
@@ -264,20 +255,13 @@ def fly_over_can(
                 plant.step(dt)
         wall = time.perf_counter() - wall0
         sender_stats, endpoint_stats = dict(sender.stats), dict(endpoint.stats)
-    record = FlightRecord(
-        t_s=t,
-        x=xs,
-        ref=refs,
-        pitches=applied,
-        psi_cmd=diags[:, D_PSI_C].copy(),
-        att_cmd=diags[:, [D_PHI_C, D_THETA_C]].copy(),
-        saturated=diags[:, D_SAT_MASK] != 0,
-        wall_s=wall,
-        extra={
+    record = FlightRecord.from_ticks(
+        t, xs, refs, applied, diags, wall,
+        {
             "rate_hz": rate_hz,
             "feedforward": ctrl.feedforward.value,
             "plant_substeps": plant.substeps,
             "servo_link": f"can {bus.describe()}",
         },
-    )
+    )  # fmt: skip
     return CanFlight(record, commanded, sender_stats, endpoint_stats)

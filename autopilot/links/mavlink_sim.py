@@ -2,34 +2,38 @@
 
 from __future__ import annotations
 
+from heli_sitl import servo_map
+from heli_sitl.closing import Closing
+from heli_sitl.mavlink_fast import SimCodec
 from heli_sitl.mavlink_link import Address, MavlinkUdp
-from heli_sitl.sim_protocol import StateAssembler, StateSample, command_message
+from heli_sitl.sim_protocol import MAV_MODE_FLAG_SAFETY_ARMED, StateAssembler, StateSample, receive
 from heli_sitl.state import FloatArray
 
 
-class SimLink:
+class SimLink(Closing):
     def __init__(self, local: Address, plant: Address, limits: FloatArray) -> None:
         self.udp = MavlinkUdp(local, plant, system_id=1, component_id=1, accept_system=1)
+        self.codec = SimCodec(system_id=1, component_id=1)
         self.limits = limits
         self.assembler = StateAssembler()
 
     def latest_state(self, timeout_s: float = 0.0, spin_s: float = 0.0) -> StateSample | None:
         """The newest complete state queued (waiting up to ``timeout_s`` for one)."""
         newest: StateSample | None = None
-        for msg, _ in self.udp.recv(timeout_s, spin_s):
+        for msg in receive(self.udp, self.codec, timeout_s, spin_s):
             s = self.assembler.feed(msg)
             if s is not None:
                 newest = s
         return newest
 
     def send_pitches(self, t_us: int, pitches_rad: FloatArray, armed: bool) -> None:
-        self.udp.send(command_message(t_us, pitches_rad, self.limits, armed))
+        controls = [0.0] * 16
+        controls[:4] = servo_map.to_normalized(pitches_rad, self.limits).tolist()
+        mode = MAV_MODE_FLAG_SAFETY_ARMED if armed else 0
+        self.udp.send_bytes(self.codec.encode_actuators(t_us, controls, mode))
+        self.udp.stats.tx_messages += 1
 
     def close(self) -> None:
         self.udp.close()
 
-    def __enter__(self) -> SimLink:
-        return self
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()

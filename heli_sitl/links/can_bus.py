@@ -28,11 +28,12 @@ on a full queue; the failure is raised as :class:`CanSendError` for the caller t
 from __future__ import annotations
 
 import logging
-import types
 from dataclasses import dataclass, replace
 from typing import Literal, cast, get_args
 
 import can
+
+from heli_sitl.closing import Closing
 
 Interface = Literal["virtual", "udp_multicast", "socketcan"]
 INTERFACES: tuple[str, ...] = get_args(Interface)
@@ -114,7 +115,7 @@ def _open(config: CanBusConfig) -> can.BusABC:
         raise CanBusError(f"cannot open CAN bus {config.describe()}: {exc}") from exc
 
 
-class CanBus:
+class CanBus(Closing):
     """One open python-can bus: ``send`` extended frames, ``recv`` with a timeout in seconds.
 
     Either opens the bus described by ``config`` or wraps an already open ``bus`` (tests
@@ -158,16 +159,7 @@ class CanBus:
             self.closed = True
             self.bus.shutdown()
 
-    def __enter__(self) -> CanBus:
-        return self
 
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: types.TracebackType | None,
-    ) -> None:
-        self.close()
 
 
 def open_bus(config: CanBusConfig | str) -> CanBus:

@@ -45,12 +45,12 @@ from __future__ import annotations
 import logging
 import math
 import time
-import types
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
+from heli_sitl.closing import Closing
 from heli_sitl.links.can_bus import CanBus, CanBusConfig, CanBusError, RateLimitedLog, open_bus
 from heli_sitl.links.dronecan_codec import (
     ARRAY_COMMAND_DTID,
@@ -105,7 +105,7 @@ class NodeStatusInfo:
     received_s: float
 
 
-class CanServoEndpoint:
+class CanServoEndpoint(Closing):
     """Plant-side DroneCAN servo input; see the module doc for what is applied.
 
     ``bus`` is a config or spec string (the endpoint opens the bus and closes it on
@@ -205,16 +205,7 @@ class CanServoEndpoint:
         if self._owns_bus:
             self.bus.close()
 
-    def __enter__(self) -> CanServoEndpoint:
-        return self
 
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: types.TracebackType | None,
-    ) -> None:
-        self.close()
 
     # --------------------------------------------------------------------- internals
 
