@@ -46,6 +46,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--autostart", action="store_true", help="arm and fly the scenario trajectory at once"
     )
     p.add_argument("--out", default=None, help="write run.csv, summary.json, flight.tlog here")
+    p.add_argument("--summary-end-s", type=float, default=None,
+                   help="error windows end here (flight time since arming)")
     s = p.add_argument_group("servo link")
     add_servo_args(s)
     s.add_argument("--can-node-id", type=int, default=None, help="DroneCAN node id")
@@ -156,7 +158,8 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
     hooks: list[TickHook] = [] if gcs is None else [gcs]
     try:
         with SimLink((LOOPBACK, args.port), (LOOPBACK, args.plant_port), limits) as sim:
-            runner = Runner(ctrl, flight, sim, cfg, hooks, recorder, servo_out=None)
+            runner = Runner(ctrl, flight, sim, cfg, hooks, recorder, servo_out=None,
+                            input_hooks=[gcs.poll] if gcs is not None else [])  # fmt: skip
             if can is not None:
                 runner.servo_out = can_output(can)
             if gcs is not None:
@@ -175,6 +178,7 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
         out.mkdir(parents=True, exist_ok=True)
         record = recorder.record(runner.wall_s, {
             "mode": args.mode, "rate_hz": rate, "feedforward": ctrl.feedforward.value,
+            "summary_end_s": args.summary_end_s,
             "loop": stats.summary(), "sim_link": link,
             "gcs_link": gcs.stats() if gcs is not None else None,
             "servo_link": servo.link, "can": dict(can.stats) if can is not None else None,

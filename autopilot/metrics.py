@@ -57,8 +57,12 @@ class FlightRecord:
         return np.asarray((self.t_s >= t0 - 1e-9) & (self.t_s <= t1 + 1e-9))
 
     def summary(self) -> dict[str, Any]:
+        """Error figures over [0, end], [10, end], [45, end]; ``end`` is the last tick, or
+        ``extra["summary_end_s"]`` (e.g. the trajectory's end when a landing follows)."""
         err = self.pos_err_m
         end = float(self.t_s[-1])
+        if self.extra.get("summary_end_s") is not None:
+            end = min(end, float(self.extra["summary_end_s"]))
         rms: dict[str, float] = {}
         mx: dict[str, float] = {}
         for t0 in (0.0, 10.0, 45.0):

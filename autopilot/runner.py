@@ -31,6 +31,8 @@ LOCKSTEP_SPIN_S = 0.002  # poll this long before sleeping (see MavlinkUdp.wait)
 TickHook = Callable[[float, FloatArray, FloatArray | None, FloatArray, Flight], None]
 # (t_us of the state answered, pitches [rad], armed) -> None: where the command goes
 ServoOutput = Callable[[int, FloatArray, bool], None]
+# (t_s, x, flight) -> None: input services (GCS commands) run before the control law
+InputHook = Callable[[float, FloatArray, Flight], None]
 
 
 @dataclass(frozen=True)
@@ -99,29 +101,42 @@ class Runner:
         hooks: Sequence[TickHook] | None = None,
         recorder: Recorder | None = None,
         servo_out: ServoOutput | None = None,
+        input_hooks: Sequence[InputHook] | None = None,
     ) -> None:
         self.ctrl = ctrl
         self.flight = flight
         self.sim = sim
         self.cfg = cfg
         self.hooks = list(hooks or [])
+        self.input_hooks = list(input_hooks or [])
+        self._last_t_s = 0.0
+        self._last_x: FloatArray | None = None
         self.servo_out: ServoOutput = servo_out or sim.send_pitches
         self.recorder = recorder
         self.stats = LoopStats()
         self.u = np.zeros(N_PITCH)
         self.wall_s = 0.0
         self._wall0: float | None = None
+        self._t_arm_s = 0.0
         self._between: list[Callable[[], None]] = []
 
     def between_ticks(self, fn: Callable[[], None]) -> None:
         """Run ``fn`` before the next tick (e.g. apply a parameter change)."""
         self._between.append(fn)
 
-    def tick(self, t_s: float, x: FloatArray) -> FloatArray:
-        if self._wall0 is None:
-            self._wall0 = time.perf_counter()
+    def service(self, t_s: float, x: FloatArray) -> None:
+        """Input services (GCS commands, parameter sets); also run while the plant is quiet."""
+        for hook in self.input_hooks:
+            hook(t_s, x, self.flight)
         while self._between:
             self._between.pop(0)()
+
+    def tick(self, t_s: float, x: FloatArray) -> FloatArray:
+        self._last_t_s, self._last_x = t_s, x
+        self.service(t_s, x)
+        if self._wall0 is None and self.flight.armed:
+            self._wall0 = time.perf_counter()
+            self._t_arm_s = t_s
         ref = self.flight.reference(t_s, x)
         if ref is None:  # disarmed: rotor idle at zero pitch, nothing integrates
             self.ctrl.reset()
@@ -132,8 +147,8 @@ class Runner:
             if self.ctrl.status != OK:
                 self.stats.bad_outputs += 1
             self.u = u
-            if self.recorder is not None:
-                self.recorder.add(t_s, x, ref, u, self.ctrl.diag)
+            if self.recorder is not None:  # flight time: since arming
+                self.recorder.add(t_s - self._t_arm_s, x, ref, u, self.ctrl.diag)
         self.stats.ticks += 1
         for hook in self.hooks:
             hook(t_s, x, ref, self.u, self.flight)
@@ -169,6 +184,8 @@ class Runner:
             now = time.monotonic()
             if s is None:
                 self._stale(now - last_state > self.cfg.stale_timeout_s)
+                if self._last_x is not None:
+                    self.service(self._last_t_s, self._last_x)
                 continue
             last_state = now
             self._stale(False)

@@ -39,7 +39,9 @@ class SimConfig:
     duration_s: float | None = None  # None: until stopped
     timeout_s: float = 1.0  # autopilot silent after this long without a command
     resend_s: float = 0.2  # lockstep: re-send the state after this long without an answer
-    hold_until_armed: bool = False  # in-air start: the clock waits for an armed command
+    # in-air start: the vehicle is held in place (time runs at wall-clock pace, nothing is
+    # integrated) until the first armed command; then the dynamics start
+    hold_until_armed: bool = False
 
 
 @dataclass
@@ -94,11 +96,21 @@ class PlantServer:
         self.stats.autopilot_silent = silent
 
     def _frozen(self, armed: bool) -> bool:
-        """While holding for an armed autopilot, the clock does not start."""
+        """While held for an armed autopilot, the state does not change."""
         if self._waiting_for_arm and armed:
             self._waiting_for_arm = False
-            log.info("autopilot armed: the clock starts")
+            log.info("autopilot armed: the vehicle is released")
         return self._waiting_for_arm
+
+    def _advance(self, dt: float) -> None:
+        if self._waiting_for_arm:
+            # held: time passes at wall-clock pace so that ground stations see a live
+            # vehicle and the mission protocol's timeouts mean what they say
+            time.sleep(dt)
+        else:
+            self.plant.step(dt)
+        self.stats.steps += 1
+        self.t_us += self.period_us
 
     def _wait(self, timeout_s: float) -> None:
         if self.can is None:
@@ -142,18 +154,14 @@ class PlantServer:
                     self.stats.stale_commands += 1
                     continue
                 self.stats.commands += 1
-                if self._frozen(armed):
-                    continue
-                if not self.plant.set_pitches(u):
+                if not self._frozen(armed) and not self.plant.set_pitches(u):
                     self.stats.bad_commands += 1
                 applied = True
             now = time.monotonic()
             if applied:
                 last_cmd = now
                 self._mark_silent(False)
-                self.plant.step(dt)
-                self.stats.steps += 1
-                self.t_us += self.period_us
+                self._advance(dt)
                 self._publish()
                 sent_at = now
                 continue
@@ -171,10 +179,11 @@ class PlantServer:
         # while the autopilot is starting; until then the state is published at 20 Hz.
         while not stop.is_set():
             cmds = self._commands()
-            if cmds and not self._frozen(cmds[-1][2]):
+            if cmds:
                 t_us, u, _ = cmds[-1]
                 self._last_cmd_us = t_us
-                self.plant.set_pitches(u)
+                if not self._frozen(cmds[-1][2]):
+                    self.plant.set_pitches(u)
                 break
             self._publish()
             self._wait(0.05)
@@ -184,19 +193,21 @@ class PlantServer:
         last_cmd = start
         k = 0
         while not stop.is_set() and not self._end_reached():
-            for t_us, u, _armed in self._commands():
+            for t_us, u, armed in self._commands():
                 if t_us < self._last_cmd_us:
                     self.stats.stale_commands += 1
                     continue
                 self._last_cmd_us = t_us
                 self.stats.commands += 1
-                if not self.plant.set_pitches(u):
+                if not self._frozen(armed) and not self.plant.set_pitches(u):
                     self.stats.bad_commands += 1
                 last_cmd = time.monotonic()
             self._mark_silent(time.monotonic() - last_cmd > self.cfg.timeout_s)
-            self.plant.step(dt)
-            self.stats.steps += 1
-            self.t_us += self.period_us
+            if self._waiting_for_arm:
+                self.stats.steps += 1  # held: the clock runs, the state does not change
+                self.t_us += self.period_us
+            else:
+                self._advance(dt)
             self._publish()
             k += 1
             delay = start + k * dt - time.monotonic()  # deadline scheduling: no drift

@@ -140,6 +140,7 @@ class GcsService:
         self._flight: Flight | None = None
         self._prev_tau: float | None = None
         self._broken: set[int] = set()
+        self.mission_on_arm = False  # mission mode selected while disarmed
 
     # -- lifecycle ------------------------------------------------------------------------
     def close(self) -> None:
@@ -149,11 +150,10 @@ class GcsService:
     def stats(self) -> dict[str, Any]:
         return {f"gcs{i}": link.stats.as_dict() for i, link in enumerate(self.links)}
 
-    # -- the tick hook --------------------------------------------------------------------
-    def __call__(
-        self, t_s: float, x: FloatArray, ref: FloatArray | None, u: FloatArray, flight: Flight
-    ) -> None:
-        self._t, self._x, self._ref, self._u, self._flight = t_s, x, ref, u, flight
+    # -- the runner's hooks ----------------------------------------------------------------
+    def poll(self, t_s: float, x: FloatArray, flight: Flight) -> None:
+        """Input hook (before the control law): commands, parameters, missions, setpoints."""
+        self._t, self._x, self._flight = t_s, x, flight
         for link in self.links:
             for msg, addr in link.recv():
                 try:
@@ -161,8 +161,14 @@ class GcsService:
                 except Exception:  # a handler bug must not take the vehicle down
                     log.exception("error handling %s", msg.get_type())
         self._send_all(self.missions.tick(t_s))
-        self._mission_progress(flight)
         self._offboard_timeout(flight)
+
+    def __call__(
+        self, t_s: float, x: FloatArray, ref: FloatArray | None, u: FloatArray, flight: Flight
+    ) -> None:
+        """Tick hook (after the control law): mission progress and telemetry."""
+        self._t, self._x, self._ref, self._u, self._flight = t_s, x, ref, u, flight
+        self._mission_progress(flight)
         self._auto_disarm(flight)
         self._telemetry()
 
@@ -202,7 +208,7 @@ class GcsService:
         if msg_id == m2.MAVLINK_MSG_ID_HEARTBEAT:
             hb = heartbeat(armed)
             mode = flight.mode if flight else Mode.IDLE
-            main, sub = MODE_TO_PX4[mode]
+            main, sub = MODE_TO_PX4[Mode.AUTO if self.mission_on_arm else mode]
             hb.custom_mode = (main << 16) | (sub << 24)
             if mode is Mode.AUTO:
                 hb.base_mode |= m2.MAV_MODE_FLAG_AUTO_ENABLED
@@ -363,6 +369,15 @@ class GcsService:
             if not has_plan:
                 return m2.MAV_RESULT_DENIED, "Arming refused: no mission or trajectory"
             f.armed = True
+            if self.mission_on_arm and self.missions.mission:
+                # mission mode was selected while disarmed (as PX4): it starts now, so the
+                # trajectory's t = 0 is this tick
+                self.mission_on_arm = False
+                result, text = self._start_items(list(self.missions.mission), Mode.AUTO)
+                if result != m2.MAV_RESULT_ACCEPTED:
+                    f.armed = False
+                    return result, text
+                return m2.MAV_RESULT_ACCEPTED, "Armed: mission started"
             f.hold(self._x)
             return m2.MAV_RESULT_ACCEPTED, "Armed"
         if p[0] == 0.0:
@@ -427,6 +442,11 @@ class GcsService:
         f = self._flight_or_fail()
         main, sub = int(p[1]) if math.isfinite(p[1]) else -1, int(p[2]) if math.isfinite(p[2]) else 0
         if main == PX4_MAIN_AUTO and sub == PX4_SUB_MISSION:
+            if not f.armed:
+                if not self.missions.mission:
+                    return m2.MAV_RESULT_DENIED, "Mission mode refused: no mission"
+                self.mission_on_arm = True
+                return m2.MAV_RESULT_ACCEPTED, "Mission mode: starts when armed"
             return self._cmd_mission_start([0.0] * 7, link, addr)
         if main == PX4_MAIN_AUTO and sub == PX4_SUB_LOITER:
             f.hold(self._x)
