@@ -24,6 +24,7 @@ lint: $(STAMP)
 	$(BIN)/mypy
 
 test: lint
+	$(BIN)/python -m heli_sitl.warmup
 	$(BIN)/pytest -q
 
 bench: $(STAMP)

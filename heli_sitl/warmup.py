@@ -1,0 +1,39 @@
+"""Compile (or load) every compiled function once, in one process: ``python -m heli_sitl.warmup``.
+
+``make test`` runs it first, so the many processes the integration tests start load the
+machine code from the cache instead of all compiling it at the same time.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+
+def main() -> None:
+    t0 = time.perf_counter()
+    from autopilot.closed_loop import SimOptions, simulate
+    from autopilot.scenario import Scenario
+    from heli_sitl import frames
+    from heli_sitl.contact import apply_ground_contact
+    from heli_sitl.plant import Plant
+
+    sc = Scenario.load("paper")
+    simulate(sc, SimOptions(duration_s=0.1))
+    x = sc.initial.state().to_array()
+    f = frames.state_to_ned_fields(x)
+    frames.state_from_ned_fields(*f[0:6].tolist(), *f[10:16].tolist())
+    frames.wrap_pi(4.0)
+    apply_ground_contact(np.zeros(12))
+    plant = Plant(sc.airframe, x)
+    plant.set_pitches(np.zeros(4))
+    plant.step(0.01)
+    from autopilot.tlc.controller import TLController
+
+    TLController(sc.airframe, sc.gains).update(0.0, x, sc.trajectory.sample(np.zeros(1))[0])
+    print(f"heli_sitl.warmup: compiled code ready in {time.perf_counter() - t0:.1f} s")
+
+
+if __name__ == "__main__":
+    main()
