@@ -15,7 +15,7 @@ from heli_sitl.demo import DemoOptions, run_demo
 
 def _demo(**kw: object) -> dict[str, object]:
     with tempfile.TemporaryDirectory() as d:
-        return run_demo(DemoOptions(out=Path(d), **kw))  # type: ignore[arg-type]
+        return run_demo(DemoOptions(out=Path(d), via_ground=False, **kw))  # type: ignore[arg-type]
 
 
 @bench("processes, lockstep (MAVLink)")
@@ -57,7 +57,7 @@ def bench_lockstep_can() -> list[Row]:
         return []
     with tempfile.TemporaryDirectory() as d:
         demo = (f"{sys.executable} -m heli_sitl.cli demo --mode lockstep --servo-link can "
-                f"--can-bus udp_multicast --out {d}")  # fmt: skip
+                f"--can-bus udp_multicast --autostart --out {d}")  # fmt: skip
         subprocess.run(["unshare", "--net", "--", "bash", "-c", f"{NETNS_SETUP} && {demo}"],
                        check=True, capture_output=True, timeout=900)  # fmt: skip
         s = json.loads((Path(d) / "summary.json").read_text())

@@ -131,7 +131,7 @@ def _demo(args: argparse.Namespace) -> int:
     out = Path(args.out)
     opts = DemoOptions(mode=args.mode, rate_hz=args.rate_hz, scenario=args.scenario, out=out,
                        duration_s=args.duration_s, servo_link=args.servo_link,
-                       can_bus=args.can_bus)  # fmt: skip
+                       can_bus=args.can_bus, via_ground=not args.autostart)  # fmt: skip
     try:
         summary = run_demo(opts)
     except DemoError as exc:
@@ -149,7 +149,8 @@ def _demo(args: argparse.Namespace) -> int:
         f"overruns {loop.get('overruns')}, stale ticks {loop.get('stale_ticks')}; "
         f"wall {summary['wall_s']:.1f} s"
     )
-    for f in [out / "run.csv", out / "summary.json", out / "flight.tlog", *figs]:
+    tlogs = [out / n for n in ("flight.tlog", "ground.tlog") if (out / n).exists()]
+    for f in [out / "run.csv", out / "summary.json", *tlogs, *figs]:
         print(f"wrote {f}")
     return 0
 
@@ -203,6 +204,8 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--rate-hz", type=float, default=100.0)
     d.add_argument("--scenario", default="paper")
     d.add_argument("--duration-s", type=float, default=None)
+    d.add_argument("--autostart", action="store_true",
+                   help="the autopilot starts the scenario itself (no ground script process)")
     d.add_argument("--servo-link", choices=("mavlink", "can"), default=None)
     d.add_argument("--can-bus", default=None, help="python-can bus spec for --servo-link can")
     d.add_argument("--out", required=True)

@@ -39,6 +39,9 @@ class DemoOptions:
     plant_port: int = 0  # 0: pick free ports
     autopilot_port: int = 0
     timeout_s: float | None = None  # whole-demo wall-clock limit
+    # fly through the ground script (a third process: upload, arm, fly, land) instead of
+    # an autopilot that starts the scenario by itself
+    via_ground: bool = True
     servo_link: str | None = None  # None: configs/links.toml
     can_bus: str | None = None
     extra_plant_args: tuple[str, ...] = ()
@@ -81,33 +84,54 @@ def run_demo(opts: DemoOptions) -> dict[str, object]:
         common += ["--servo-link", opts.servo_link]
     if opts.can_bus:
         common += ["--can-bus", opts.can_bus]
-    if opts.duration_s is not None:
+    if opts.duration_s is not None and not opts.via_ground:
         common += ["--duration-s", str(opts.duration_s)]
     plant_cmd = _cmd("heli_sitl.cli") + ["run", *common, "--port", str(pp),
                                          "--autopilot-port", str(ap), *opts.extra_plant_args]
+    ground_cmd: list[str] | None = None
+    gcs_port = free_udp_port()
+    if opts.via_ground:
+        plant_cmd.append("--hold-until-armed")  # in the air, held until the ground arms
+        ground_cmd = _cmd("ground.cli") + [
+            "fly", str(scenario_file(opts.scenario)), "--gcs-port", str(gcs_port),
+            "--tlog", str(opts.out / "ground.tlog"), "--quiet", "--connect-timeout-s", "120",
+        ]  # fmt: skip
     # the GCS link binds free local ports; it still sends to 14550/14540, so a running
     # QGroundControl shows the demo flight
     ap_cmd = _cmd("autopilot.cli") + [*common, "--port", str(ap), "--plant-port", str(pp),
                                       "--local-gcs-port", str(free_udp_port()),
                                       "--local-api-port", str(free_udp_port()),
-                                      "--autostart", "--out", str(opts.out),
+                                      "--out", str(opts.out),
                                       *opts.extra_autopilot_args]  # fmt: skip
+    if opts.via_ground:
+        ap_cmd += ["--gcs-port", str(gcs_port), "--summary-end-s",
+                   str(opts.duration_s or scenario_duration_s(opts.scenario))]  # fmt: skip
+    else:
+        ap_cmd += ["--autostart"]
     procs: list[tuple[str, subprocess.Popen[bytes]]] = []
     try:
-        for name, cmd in (("plant", plant_cmd), ("autopilot", ap_cmd)):
-            procs.append((name, spawn(cmd)))
+        for name, cmd in (("plant", plant_cmd), ("autopilot", ap_cmd), ("ground", ground_cmd)):
+            if cmd is not None:
+                procs.append((name, spawn(cmd)))
         limit = opts.timeout_s or (600.0 if opts.mode == "lockstep" else 400.0)
         deadline = time.monotonic() + limit
-        autopilot = procs[1][1]
-        while autopilot.poll() is None:
+        # the flight is over when the ground script has landed (or the autopilot is done)
+        leader = procs[2][1] if opts.via_ground else procs[1][1]
+        while leader.poll() is None:
             for name, p in procs:
                 if p.poll() is not None and p.returncode != 0:
                     raise DemoError(f"{name} died: {_reason(p)}")
             if time.monotonic() > deadline:
                 raise DemoError(f"timeout: the flight did not finish within {limit:.0f} s")
             time.sleep(0.05)
-        if autopilot.returncode != 0:
-            raise DemoError(f"autopilot failed: {_reason(autopilot)}")
+        if leader.returncode != 0:
+            who = "ground script" if opts.via_ground else "autopilot"
+            raise DemoError(f"{who} failed: {_reason(leader)}")
+        if opts.via_ground:  # the autopilot writes its record when told to stop
+            autopilot = procs[1][1]
+            autopilot.send_signal(signal.SIGTERM)
+            if autopilot.wait(timeout=120) != 0:
+                raise DemoError(f"autopilot failed: {_reason(autopilot)}")
     finally:
         _stop_all(procs)
     summary_path = opts.out / "summary.json"
@@ -184,6 +208,20 @@ def _stop_all(procs: list[tuple[str, subprocess.Popen[bytes]]]) -> None:
         except subprocess.TimeoutExpired:
             p.kill()
             p.wait()
+
+
+def scenario_file(name_or_path: str) -> Path:
+    from heli_sitl.config import resolve
+    from heli_sitl.scenario_state import scenario_path
+
+    return resolve(scenario_path(name_or_path)).resolve()
+
+
+def scenario_duration_s(name_or_path: str) -> float:
+    from heli_sitl.config import read_toml
+
+    _, table = read_toml(scenario_file(name_or_path))
+    return float(table["run"]["duration_s"])
 
 
 def _reason(p: subprocess.Popen[bytes]) -> str:

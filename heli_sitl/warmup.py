@@ -24,7 +24,9 @@ def main() -> None:
     x = sc.initial.state().to_array()
     f = frames.state_to_ned_fields(x)
     frames.state_from_ned_fields(*f[0:6].tolist(), *f[10:16].tolist())
-    frames.wrap_pi(4.0)
+    from heli_sitl.kinematics import wrap_pi
+
+    wrap_pi(4.0)
     apply_ground_contact(np.zeros(12))
     plant = Plant(sc.airframe, x)
     plant.set_pitches(np.zeros(4))

@@ -20,7 +20,7 @@ def test_demo_over_can_flies_the_paper_scenario(tmp_path: Path) -> None:
         pytest.skip(reason)
     demo = (
         f"{sys.executable} -m heli_sitl.cli demo --mode lockstep --servo-link can "
-        f"--can-bus udp_multicast --out {tmp_path}"
+        f"--can-bus udp_multicast --autostart --out {tmp_path}"
     )
     proc = subprocess.run(
         ["unshare", "--net", "--", "bash", "-c", f"{NETNS_SETUP} && {demo}"],

@@ -34,7 +34,9 @@ def in_process() -> dict[str, np.ndarray]:
 
 
 def test_lockstep_reproduces_the_in_process_flight(tmp_path: Path, in_process) -> None:  # type: ignore[no-untyped-def]
-    summary = run_demo(DemoOptions(mode="lockstep", rate_hz=100.0, out=tmp_path, timeout_s=600))
+    summary = run_demo(
+        DemoOptions(mode="lockstep", rate_hz=100.0, out=tmp_path, timeout_s=600, via_ground=False)
+    )
     cols = read_csv_columns(tmp_path / "run.csv")
     assert cols["t"].size == in_process["t"].size == 12001
     d = np.stack([cols[k] - in_process[k] for k in ("x", "y", "z")], axis=1)
@@ -54,7 +56,9 @@ def test_lockstep_reproduces_the_in_process_flight(tmp_path: Path, in_process) -
 
 
 def test_realtime_100hz_tracks_the_paper(tmp_path: Path, in_process) -> None:  # type: ignore[no-untyped-def]
-    summary = run_demo(DemoOptions(mode="realtime", rate_hz=100.0, out=tmp_path, timeout_s=400))
+    summary = run_demo(
+        DemoOptions(mode="realtime", rate_hz=100.0, out=tmp_path, timeout_s=400, via_ground=False)
+    )
     ref = in_process["summary"]
     rms, rms_ref = summary["rms_pos_err_m"]["45-120"], ref["rms_pos_err_m"]["45-120"]  # type: ignore[index]
     jump, jump_ref = summary["max_pos_err_40_45_m"], ref["max_pos_err_40_45_m"]
@@ -68,7 +72,8 @@ def test_a_busy_port_is_a_one_line_failure(tmp_path: Path) -> None:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind((LOOPBACK, 0))
         with pytest.raises(DemoError, match=r"plant died: .*busy"):
-            run_demo(DemoOptions(plant_port=s.getsockname()[1], out=tmp_path, duration_s=2.0, timeout_s=120))
+            run_demo(DemoOptions(plant_port=s.getsockname()[1], out=tmp_path, duration_s=2.0,
+                                 timeout_s=120, via_ground=False))  # fmt: skip
 
 
 def _wait_for(link: MavlinkUdp, kind: str, timeout_s: float) -> object:
