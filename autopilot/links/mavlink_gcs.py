@@ -141,6 +141,7 @@ class GcsService:
         self._prev_tau: float | None = None
         self._broken: set[int] = set()
         self.mission_on_arm = False  # mission mode selected while disarmed
+        self._mission_traj: WaypointTrajectory | None = None
 
     # -- lifecycle ------------------------------------------------------------------------
     def close(self) -> None:
@@ -373,19 +374,24 @@ class GcsService:
                 # mission mode was selected while disarmed (as PX4): it starts now, so the
                 # trajectory's t = 0 is this tick
                 self.mission_on_arm = False
-                result, text = self._start_items(list(self.missions.mission), Mode.AUTO)
+                result, text = self._start_items(list(self.missions.mission), Mode.AUTO, mission=True)
                 if result != m2.MAV_RESULT_ACCEPTED:
                     f.armed = False
                     return result, text
                 return m2.MAV_RESULT_ACCEPTED, "Armed: mission started"
-            f.hold(self._x)
+            if f.mode is not Mode.GUIDED:  # armed in offboard: follow the setpoints at once
+                f.hold(self._x)
             return m2.MAV_RESULT_ACCEPTED, "Armed"
         if p[0] == 0.0:
             ok, why = f.disarm(self._x, force=p[1] == FORCE_DISARM_MAGIC)
             return (m2.MAV_RESULT_ACCEPTED if ok else m2.MAV_RESULT_DENIED), f"Disarm: {why}"
         return m2.MAV_RESULT_DENIED, "Arm: param1 must be 0 or 1"
 
-    def _start_items(self, items: list[MissionItem], mode: Mode, start_seq: int = 0) -> tuple[int, str]:
+    def _start_items(
+        self, items: list[MissionItem], mode: Mode, start_seq: int = 0, mission: bool = False
+    ) -> tuple[int, str]:
+        """Fly ``items`` from here; ``mission``: they are the stored mission, whose progress
+        (MISSION_CURRENT, MISSION_ITEM_REACHED) is reported."""
         f = self._flight_or_fail()
         try:
             traj = mission_to_trajectory(items, self.cfg.home, self._x[POS].tolist(), self.flight_limits,
@@ -395,6 +401,7 @@ class GcsService:
         f.start(traj, self._t)
         f.mode = mode
         self._prev_tau = None
+        self._mission_traj = traj if mission and isinstance(traj, WaypointTrajectory) else None
         return m2.MAV_RESULT_ACCEPTED, ""
 
     def _cmd_mission_start(self, p: list[float], link: MavlinkUdp, addr: Address) -> tuple[int, str]:
@@ -405,7 +412,7 @@ class GcsService:
             return m2.MAV_RESULT_DENIED, "Mission start refused: no mission"
         first = int(p[0]) if math.isfinite(p[0]) and p[0] > 0 else 0
         self.missions.set_current(first)
-        result, text = self._start_items(list(self.missions.mission), Mode.AUTO, first)
+        result, text = self._start_items(list(self.missions.mission), Mode.AUTO, first, mission=True)
         return result, text or "Mission started"
 
     def _local_item(self, command: int, z_up_m: float | None = None) -> MissionItem:
@@ -514,8 +521,10 @@ class GcsService:
         return check_mission(items, self.cfg.home, self.flight_limits)
 
     def _mission_progress(self, flight: Flight) -> None:
-        traj = flight.trajectory
-        if flight.mode is not Mode.AUTO or not isinstance(traj, WaypointTrajectory):
+        """Report the stored mission's progress while its trajectory is the one flown, up to
+        and including the tick it ends on (the flight has switched to HOLD by then)."""
+        traj = self._mission_traj
+        if traj is None or flight.trajectory is not traj:
             return
         tau = self._t - flight.t0_s
         prev = self._prev_tau if self._prev_tau is not None else -1e-9
@@ -526,6 +535,8 @@ class GcsService:
         active = traj.active_seq(tau)
         if active is not None and active != self.missions.current_seq:
             out += self.missions.set_current(active)
+        if tau > traj.duration_s:
+            self._mission_traj = None  # done: every item was reached by now
         self._send_all(out)
 
     def _offboard_timeout(self, flight: Flight) -> None:
