@@ -1,10 +1,327 @@
-"""heli-ground: the ground-station script (see ``heli-ground --help``)."""
+"""heli-ground: the ground-station script (upload, fly, log, plot, parameters).
+
+Talks to the vehicle of ``heli-sitl up`` (or any MAVLink vehicle that speaks the same
+services) on UDP: ``--gcs-port`` is the port heli-ground listens on, i.e. where the vehicle
+sends its ground-station link (14550 by default; the API link is 14540). Exit status: 0 on
+success, 1 when the vehicle or the link fails, 2 for a bad command line or input file; the
+reason is one line on stderr.
+"""
 
 from __future__ import annotations
 
+import argparse
+import contextlib
+import math
 import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+from ground.client import (
+    PX4_MAIN_AUTO,
+    PX4_SUB_MISSION,
+    CommandRefusedError,
+    GroundClient,
+    GroundError,
+    MissionProgress,
+    read_signing_key,
+)
+from ground.files import FileFormatError, MissionFile, load_mission
+from ground.log import TlogError, tlog_columns, write_csv
+from heli_sitl.mavlink_link import PortBusyError, TlogWriter, mavlink2
+
+PROG = "heli-ground"
+HOME_MISMATCH_M = 1.0  # warn when a file's home is farther than this from the vehicle's
+
+
+class UsageError(Exception):
+    """Bad input (file, arguments): exit status 2."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--gcs-port", type=int, default=14550,
+                        help="UDP port to listen on: where the vehicle sends (default 14550)")
+    common.add_argument("--signing-key", type=Path, default=None,
+                        help="MAVLink 2 signing key file (32 bytes or 64 hex digits)")
+    common.add_argument("--connect-timeout-s", type=float, default=30.0,
+                        help="how long to wait for the vehicle's heartbeat")
+    p = argparse.ArgumentParser(prog=PROG, description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = p.add_subparsers(dest="cmd", required=True)
+
+    up = sub.add_parser("upload", parents=[common], help="upload a mission or trajectory file")
+    up.add_argument("file", type=Path, help=".waypoints, .plan, trajectory .toml or .csv")
+    up.add_argument("--dt-s", type=float, default=None, help="TOML trajectory sampling step [s]")
+    up.set_defaults(func=_upload)
+
+    fly = sub.add_parser("fly", parents=[common],
+                         help="upload, arm, start, follow to the end, land, disarm")
+    fly.add_argument("file", type=Path)
+    fly.add_argument("--dt-s", type=float, default=None, help="TOML trajectory sampling step [s]")
+    fly.add_argument("--tlog", type=Path, default=None, help="also record the flight to this .tlog")
+    fly.add_argument("--timeout-s", type=float, default=None,
+                     help="give up following after this long (default: the mission's length + 120 s)")
+    fly.add_argument("--quiet", action="store_true", help="no progress bar")
+    fly.set_defaults(func=_fly)
+
+    lg = sub.add_parser("log", parents=[common], help="record everything received to a .tlog")
+    lg.add_argument("--out", type=Path, required=True, help="the .tlog to write")
+    lg.add_argument("--csv", type=Path, default=None, help="then export run.csv columns to this file")
+    lg.add_argument("--duration-s", type=float, default=None, help="stop after this long (default: Ctrl-C)")
+    lg.set_defaults(func=_log)
+
+    pl = sub.add_parser("plot", help="the paper's Figs 5-8 from a .tlog")
+    pl.add_argument("tlog", type=Path)
+    pl.add_argument("--out", type=Path, required=True, help="output directory")
+    pl.set_defaults(func=_plot)
+
+    pa = sub.add_parser("params", help="vehicle parameters")
+    psub = pa.add_subparsers(dest="action", required=True)
+    g = psub.add_parser("get", parents=[common], help="print one parameter")
+    g.add_argument("name")
+    g.set_defaults(func=_param_get)
+    s = psub.add_parser("set", parents=[common], help="set one parameter (the vehicle may refuse)")
+    s.add_argument("name")
+    s.add_argument("value", type=float)
+    s.set_defaults(func=_param_set)
+    d = psub.add_parser("dump", parents=[common], help="print every parameter (NAME VALUE)")
+    d.add_argument("--out", type=Path, default=None, help="write to this file instead")
+    d.set_defaults(func=_param_dump)
+    return p
 
 
 def main(argv: list[str] | None = None) -> int:
-    print("heli-ground: not built yet", file=sys.stderr)
-    return 2
+    args = build_parser().parse_args(argv)
+    if argv is None:  # run as a program (not called from Python): SIGTERM ends it as Ctrl-C does,
+        from heli_sitl.demo import terminate_on_sigterm  # so a .tlog is closed, not cut
+
+        terminate_on_sigterm()
+    func: Callable[[argparse.Namespace], int] = args.func
+    try:
+        return func(args)
+    except (FileFormatError, TlogError, UsageError) as exc:
+        print(f"{PROG}: {exc}", file=sys.stderr)
+        return 2
+    except (GroundError, PortBusyError) as exc:
+        print(f"{PROG}: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted", file=sys.stderr)
+        return 130
+
+
+# ----------------------------------------------------------------------------- helpers
+
+
+def _client(args: argparse.Namespace, tlog: TlogWriter | None = None) -> GroundClient:
+    key = None
+    if args.signing_key is not None:
+        try:
+            key = read_signing_key(args.signing_key)
+        except OSError as exc:
+            raise UsageError(f"{args.signing_key}: cannot read the signing key: {exc.strerror}") from exc
+        except GroundError as exc:  # a malformed key file is bad input, not a vehicle failure
+            raise UsageError(str(exc)) from exc
+    try:
+        return GroundClient(args.gcs_port, signing_key=key, tlog=tlog)
+    except PortBusyError as exc:
+        raise GroundError(f"UDP port {args.gcs_port} is busy (another ground station listening?)") from exc
+
+
+def _load(args: argparse.Namespace) -> MissionFile:
+    mf = load_mission(args.file, args.dt_s)
+    if not mf.items:
+        raise UsageError(f"{args.file}: no mission items")
+    return mf
+
+
+def _check_home(gc: GroundClient, mf: MissionFile) -> None:
+    """Warn (only) when the file was planned for another home: relative altitudes and local
+    positions are about the vehicle's home, not the file's."""
+    if mf.home is None:
+        return
+    from autopilot.geo import geo_to_ned_m
+
+    try:
+        home = gc.home()
+    except GroundError:
+        return
+    n, e, d = geo_to_ned_m(home, mf.home.lat_deg, mf.home.lon_deg, mf.home.alt_amsl_m)
+    if math.hypot(n, e) > HOME_MISMATCH_M or abs(d) > HOME_MISMATCH_M:
+        print(f"{PROG}: warning: the file's home is {math.hypot(n, e):.1f} m / {-d:+.1f} m from the "
+              f"vehicle's home ({home.lat_deg:.7f}, {home.lon_deg:.7f}, {home.alt_amsl_m:.1f} m)",
+              file=sys.stderr)  # fmt: skip
+
+
+def _describe(mf: MissionFile) -> str:
+    if mf.is_trajectory:
+        return f"timed trajectory, {len(mf.items) - 1} samples, {mf.duration_s or 0.0:.1f} s"
+    return f"{len(mf.items)} mission items"
+
+
+# ----------------------------------------------------------------------------- commands
+
+
+def _upload(args: argparse.Namespace) -> int:
+    mf = _load(args)
+    with _client(args) as gc:
+        gc.connect(args.connect_timeout_s)
+        _check_home(gc, mf)
+        gc.upload_mission(mf.items)
+    print(f"uploaded {args.file} ({_describe(mf)})")
+    return 0
+
+
+def _fly(args: argparse.Namespace) -> int:
+    mf = _load(args)
+    tlog = TlogWriter(args.tlog) if args.tlog else None
+    try:
+        with _client(args, tlog) as gc:
+            gc.connect(args.connect_timeout_s)
+            _check_home(gc, mf)
+            gc.upload_mission(mf.items)
+            print(f"uploaded {args.file} ({_describe(mf)})", flush=True)
+            # Mission mode first, then arm: the mission starts on the arming tick (as PX4
+            # does), so the trajectory's t = 0 is the moment a held vehicle is released.
+            # A vehicle that refuses mission mode while disarmed gets arm + MISSION_START.
+            try:
+                gc.set_mode(PX4_MAIN_AUTO, PX4_SUB_MISSION)
+                gc.arm()
+            except CommandRefusedError:
+                gc.arm()
+                try:
+                    gc.start_mission()
+                except GroundError:
+                    with contextlib.suppress(GroundError):
+                        gc.disarm()  # still on the ground: do not leave it armed
+                    raise
+            t0 = gc.vehicle_time_s()
+            prog = _follow(gc, mf, args)
+            n = len(mf.items)
+            done = "" if mf.is_trajectory else f"; {len(prog.reached)} of {n} items reported reached"
+            print(f"mission over after {prog.elapsed_s:.1f} s ({prog.reason}){done}", flush=True)
+            if mf.items[-1].command in (mavlink2.MAV_CMD_NAV_LAND, mavlink2.MAV_CMD_NAV_RETURN_TO_LAUNCH):
+                # it ends on the ground: let it settle (EXTENDED_SYS_STATE comes at 1 Hz)
+                with contextlib.suppress(GroundError):
+                    gc.wait_landed(timeout_s=10.0)
+            else:
+                gc.recv_match(lambda m: m.get_type() == "EXTENDED_SYS_STATE" and gc.from_vehicle(m), 2.5)
+            if gc.landed_state() != mavlink2.MAV_LANDED_STATE_ON_GROUND:
+                gc.land()
+                print("landing", flush=True)
+                gc.wait_landed(timeout_s=180.0)
+            _disarm_when_landed(gc)
+            t1 = gc.vehicle_time_s()
+            took = f" ({t1 - t0:.1f} s of vehicle time after the start)" if t0 is not None and t1 else ""
+            print(f"landed and disarmed{took}")
+    finally:
+        if tlog is not None:
+            tlog.close()
+    return 0
+
+
+def _follow(gc: GroundClient, mf: MissionFile, args: argparse.Namespace) -> MissionProgress:
+    from tqdm import tqdm
+
+    timed = mf.is_trajectory
+    total = float(mf.duration_s or 0.0) if timed else float(len(mf.items))
+    if args.timeout_s is not None:
+        timeout = float(args.timeout_s)
+    elif timed:
+        timeout = total + 120.0
+    else:  # a waypoint mission's length is the vehicle's business: allow 30 s per item
+        timeout = 120.0 + 30.0 * len(mf.items)
+    with tqdm(total=total, unit="s" if timed else "item", disable=args.quiet, file=sys.stderr,
+              bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f} {unit} [{elapsed}<{remaining}]") as bar:
+
+        def update(p: MissionProgress) -> None:
+            n = min(total, round(p.elapsed_s) if timed else float(len(p.reached)))
+            if n != bar.n:  # redraw on change only (a log file gets one line per redraw)
+                bar.update(n - bar.n)
+
+        prog = gc.follow_mission(len(mf.items), duration_s=mf.duration_s if timed else None,
+                                 timeout_s=timeout, on_update=update)  # fmt: skip
+        bar.update(total - bar.n)
+    return prog
+
+
+def _disarm_when_landed(gc: GroundClient, timeout_s: float = 10.0) -> None:
+    """Disarm; the vehicle refuses until it is at rest on the ground, so retry a little."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        gc.spin(0.3)
+        if gc.armed() is False:
+            return
+        try:
+            gc.disarm()
+            return
+        except GroundError:
+            if time.monotonic() > deadline:
+                raise
+
+
+def _log(args: argparse.Namespace) -> int:
+    with TlogWriter(args.out) as tlog, _client(args, tlog) as gc:
+        end = None if args.duration_s is None else time.monotonic() + args.duration_s
+        try:
+            gc.connect(args.connect_timeout_s)
+            while end is None or time.monotonic() < end:
+                gc.spin(1.0 if end is None else max(0.0, min(1.0, end - time.monotonic())))
+        except KeyboardInterrupt:
+            pass  # the normal way to stop a recording without --duration-s
+        n = gc.link.stats.rx_messages
+    print(f"wrote {args.out} ({n} messages)")
+    if args.csv is not None:
+        cols = tlog_columns(args.out)
+        write_csv(cols, args.csv)
+        print(f"wrote {args.csv} ({len(cols['t'])} rows)")
+    return 0
+
+
+def _plot(args: argparse.Namespace) -> int:
+    from ground.plots import plot_figures
+
+    cols = tlog_columns(args.tlog)
+    if len(cols["t"]) < 2:
+        raise UsageError(f"{args.tlog}: no position telemetry (LOCAL_POSITION_NED) from the vehicle")
+    for f in plot_figures(cols, args.out, title=args.tlog.stem):
+        print(f"wrote {f}")
+    return 0
+
+
+def _param_get(args: argparse.Namespace) -> int:
+    with _client(args) as gc:
+        gc.connect(args.connect_timeout_s)
+        pv = gc.param_get(args.name)
+    print(f"{pv.name} {pv.value:.9g}")
+    return 0
+
+
+def _param_set(args: argparse.Namespace) -> int:
+    with _client(args) as gc:
+        gc.connect(args.connect_timeout_s)
+        res = gc.param_set(args.name, args.value)
+    if not res.accepted:
+        why = f": {res.reason}" if res.reason else ""
+        raise GroundError(f"{args.name} = {args.value:g} refused{why} (still {res.value.value:.9g})")
+    print(f"{res.value.name} {res.value.value:.9g}")
+    return 0
+
+
+def _param_dump(args: argparse.Namespace) -> int:
+    with _client(args) as gc:
+        gc.connect(args.connect_timeout_s)
+        params = gc.param_list()
+    # MAVProxy's "param save" layout (NAME VALUE), so "param load" reads it back
+    text = "".join(f"{pv.name:<16} {pv.value:.9g}\n" for pv in params.values())
+    if args.out is not None:
+        args.out.write_text(text)
+        print(f"wrote {args.out} ({len(params)} parameters)")
+    else:
+        sys.stdout.write(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

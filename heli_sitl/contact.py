@@ -11,14 +11,16 @@ import math
 
 from heli_sitl._jit import njit
 from heli_sitl.kinematics import rot_body_to_earth
-from heli_sitl.state import P_X, PHI, PSI, Q_Y, R_Z, THETA, U_F, V_L, W_U, Z_U, FloatArray
+from heli_sitl.state import P_X, PHI, PSI, Q_Y, R_Z, THETA, U_F, V_L, W_U, X_N, Y_W, Z_U, FloatArray
 
 GROUND_Z_M = 0.0
 
 
 @njit
-def apply_ground_contact(x: FloatArray) -> bool:
-    """Project ``x`` (in place) onto the admissible set; True if the vehicle rests on the ground."""
+def apply_ground_contact(x: FloatArray, x_before: FloatArray) -> bool:
+    """Project ``x`` (in place) onto the admissible set; True if the vehicle rests on the ground.
+    ``x_before`` is the state at the start of the step: while resting, skid friction keeps its
+    horizontal position and yaw (the step's own integration would let them creep)."""
     if x[Z_U] > GROUND_Z_M:
         return False
     rt = rot_body_to_earth(x[PHI], x[THETA], x[PSI])
@@ -35,4 +37,8 @@ def apply_ground_contact(x: FloatArray) -> bool:
     x[P_X] = 0.0
     x[Q_Y] = 0.0
     x[R_Z] = 0.0
+    if x_before[Z_U] <= GROUND_Z_M:  # already resting before the step: nothing slides
+        x[X_N] = x_before[X_N]
+        x[Y_W] = x_before[Y_W]
+        x[PSI] = x_before[PSI]
     return True

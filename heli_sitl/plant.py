@@ -29,7 +29,7 @@ def plant_step(
 ) -> tuple[FloatArray, bool]:
     """RK4 over one hold interval, then ground contact; returns (new state, on ground)."""
     y = rk4_step(t, x, u, c, dt, n_sub)
-    on_ground = apply_ground_contact(y) if contact else False
+    on_ground = apply_ground_contact(y, x) if contact else False
     return y, on_ground
 
 

@@ -27,7 +27,7 @@ def main() -> None:
     from heli_sitl.kinematics import wrap_pi
 
     wrap_pi(4.0)
-    apply_ground_contact(np.zeros(12))
+    apply_ground_contact(np.zeros(12), np.zeros(12))
     plant = Plant(sc.airframe, x)
     plant.set_pitches(np.zeros(4))
     plant.step(0.01)

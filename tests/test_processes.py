@@ -203,3 +203,20 @@ def test_silent_links_are_detected_and_the_command_held(tmp_path: Path) -> None:
     assert summary["loop"]["bad_outputs"] == 0
     cols = read_csv_columns(tmp_path / "run.csv")
     assert all(np.all(np.isfinite(cols[k])) for k in ("theta_m", "theta_t", "eps", "eta"))
+
+
+def test_demo_through_the_ground_script_matches_in_process(tmp_path: Path, in_process) -> None:  # type: ignore[no-untyped-def]
+    """Three processes: heli-ground uploads the paper trajectory (timed-trajectory encoding),
+    selects mission mode and arms; the held plant is released on that tick."""
+    summary = run_demo(DemoOptions(mode="lockstep", rate_hz=100.0, out=tmp_path, timeout_s=600))
+    cols = read_csv_columns(tmp_path / "run.csv")
+    flight = cols["t"] <= 120.0 + 1e-9
+    d = np.stack(
+        [np.interp(in_process["t"], cols["t"][flight], cols[k][flight]) - in_process[k]
+         for k in ("x", "y", "z")], axis=1,
+    )  # fmt: skip
+    rms = float(np.sqrt(np.mean(np.sum(d**2, axis=1))))
+    assert rms <= 1e-3, f"ground-script flight vs in-process RMS {rms:.2e} m"
+    rms_ref = in_process["summary"]["rms_pos_err_m"]["45-120"]  # type: ignore[index]
+    assert abs(summary["rms_pos_err_m"]["45-120"] - rms_ref) < 0.002  # type: ignore[index]
+    assert (tmp_path / "ground.tlog").stat().st_size > 0

@@ -164,3 +164,31 @@ def test_landed_with_ground_command_does_not_wind_up(paper: Scenario) -> None:
         runner.tick(k * 0.01, x)
     assert np.all(ctrl.state[S_I1 : S_I4 + 3] == 0.0)
     runner.sim.close()
+
+
+def test_disarmed_on_the_ground_does_not_yaw() -> None:
+    """Zero pitch still leaves the main rotor's profile torque; skid friction holds the yaw."""
+    from heli_sitl.plant import Plant
+
+    plant = Plant(Airframe.load(), np.zeros(12))
+    plant.set_pitches(np.zeros(4))
+    for _ in range(500):
+        plant.step(0.01)
+    assert plant.on_ground and plant.x[8] == 0.0 and np.all(plant.x[0:3] == 0.0)
+
+
+def test_ftp_requests_get_a_nak() -> None:
+    from autopilot.links.mavlink_gcs import FTP_OPCODE_NAK, ftp_nak
+
+    mav = mavlink2.MAVLink(None, srcSystem=255, srcComponent=190)
+    req_payload = [0] * 251
+    req_payload[0:2] = [41, 0]  # seq 41
+    req_payload[2], req_payload[3] = 3, 4  # session 3, OpenFileRO
+    req = mavlink2.MAVLink_file_transfer_protocol_message(0, 1, 1, req_payload)
+    [parsed_req] = mavlink2.MAVLink(None).parse_buffer(bytes(req.pack(mav)))
+    nak = ftp_nak(parsed_req)
+    [parsed] = mavlink2.MAVLink(None).parse_buffer(bytes(nak.pack(mavlink2.MAVLink(None, 1, 1))))
+    p = bytes(parsed.payload)
+    assert (parsed.target_system, parsed.target_component) == (255, 190)
+    assert int.from_bytes(p[0:2], "little") == 42 and p[2] == 3
+    assert p[3] == FTP_OPCODE_NAK and p[4] == 1 and p[5] == 4 and p[12] == 7

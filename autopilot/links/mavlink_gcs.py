@@ -47,6 +47,25 @@ MODE_TO_PX4: dict[Mode, tuple[int, int]] = {
     Mode.GUIDED: (PX4_MAIN_OFFBOARD, 0),
 }
 
+FTP_OPCODE_NAK = 129
+FTP_ERR_UNKNOWN_COMMAND = 7
+
+
+def ftp_nak(msg: Message) -> Message:
+    """Answer any MAVLink FTP request with NAK(UnknownCommand): this vehicle has no files.
+    Without an answer MAVProxy waits for three FTP timeouts before its parameter fetch."""
+    req = bytes(msg.payload)
+    seq = int.from_bytes(req[0:2], "little") if len(req) >= 2 else 0
+    session = req[2] if len(req) > 2 else 0
+    req_opcode = req[3] if len(req) > 3 else 0
+    payload = bytearray(251)
+    payload[0:2] = ((seq + 1) & 0xFFFF).to_bytes(2, "little")
+    payload[2], payload[3], payload[4], payload[5] = session, FTP_OPCODE_NAK, 1, req_opcode
+    payload[12] = FTP_ERR_UNKNOWN_COMMAND
+    return m2.MAVLink_file_transfer_protocol_message(0, msg.get_srcSystem(), msg.get_srcComponent(),
+                                                     list(payload))  # fmt: skip
+
+
 # Messages accepted unsigned when signing is on: they change nothing on the vehicle.
 UNSIGNED_OK = frozenset({
     m2.MAVLINK_MSG_ID_HEARTBEAT, m2.MAVLINK_MSG_ID_PARAM_REQUEST_LIST,
@@ -142,6 +161,7 @@ class GcsService:
         self._broken: set[int] = set()
         self.mission_on_arm = False  # mission mode selected while disarmed
         self._mission_traj: WaypointTrajectory | None = None
+        self._mission_done = False
 
     # -- lifecycle ------------------------------------------------------------------------
     def close(self) -> None:
@@ -187,8 +207,10 @@ class GcsService:
         t = self._t
         due = []
         for msg_id, interval in self.intervals_s.items():
-            if t >= self.next_due.get(msg_id, 0.0):
-                self.next_due[msg_id] = t + interval
+            due_t = self.next_due.get(msg_id, 0.0)
+            if t >= due_t:
+                # next = previous + interval (no drift); restart if more than one behind
+                self.next_due[msg_id] = due_t + interval if t < due_t + interval else t + interval
                 try:
                     msg = self.build(msg_id)
                     if msg is not None:
@@ -219,8 +241,11 @@ class GcsService:
         if msg_id == m2.MAVLINK_MSG_ID_SYS_STATUS:
             sensors = (m2.MAV_SYS_STATUS_SENSOR_3D_GYRO | m2.MAV_SYS_STATUS_SENSOR_3D_ACCEL
                        | m2.MAV_SYS_STATUS_SENSOR_GPS)  # fmt: skip
+            # pre-arm check: healthy when arming would be accepted (MAVSDK is_armable, QGC)
+            prearm = m2.MAV_SYS_STATUS_PREARM_CHECK
+            healthy = sensors | (prearm if self._armable() else 0)
             return m2.MAVLink_sys_status_message(
-                sensors, sensors, sensors, 100, 0xFFFF, -1, -1, 0, 0, 0, 0, 0, 0
+                sensors | prearm, sensors | prearm, healthy, 100, 0xFFFF, -1, -1, 0, 0, 0, 0, 0, 0
             )
         if msg_id in (m2.MAVLINK_MSG_ID_ATTITUDE, m2.MAVLINK_MSG_ID_LOCAL_POSITION_NED):
             att, lpn = telemetry.attitude_and_position(t_us, x)
@@ -256,7 +281,12 @@ class GcsService:
         if msg_id == m2.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW:
             return telemetry.servo_output(t_us, self._u, self.limits)
         if msg_id == m2.MAVLINK_MSG_ID_MISSION_CURRENT:
-            return self.missions.mission_current_message()
+            state = None  # the server's default: NOT_STARTED, or NO_MISSION
+            if self._mission_traj is not None:
+                state = m2.MISSION_STATE_ACTIVE
+            elif self._mission_done:
+                state = m2.MISSION_STATE_COMPLETE
+            return self.missions.mission_current_message(state)
         if msg_id == m2.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
             return m2.MAVLink_autopilot_version_message(
                 CAPABILITIES, 0x00010000, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, 1, [0] * 18
@@ -293,6 +323,8 @@ class GcsService:
                 link.send(*out, to=addr)
         elif kind == "SET_POSITION_TARGET_LOCAL_NED":
             self._on_setpoint(msg)
+        elif kind == "FILE_TRANSFER_PROTOCOL":
+            link.send(ftp_nak(msg), to=addr)
         elif kind == "TIMESYNC" and msg.tc1 == 0:
             link.send(m2.MAVLink_timesync_message(int(self._t * 1e9), msg.ts1), to=addr)
 
@@ -358,6 +390,10 @@ class GcsService:
             )
         self._ack(link, addr, msg, result)
 
+    def _armable(self) -> bool:
+        f = self._flight
+        return f is not None and (f.armed or bool(self.missions.mission) or f.mode is Mode.GUIDED)
+
     def _flight_or_fail(self) -> Flight:
         if self._flight is None:
             raise RuntimeError("no tick yet")
@@ -402,6 +438,7 @@ class GcsService:
         f.mode = mode
         self._prev_tau = None
         self._mission_traj = traj if mission and isinstance(traj, WaypointTrajectory) else None
+        self._mission_done = False
         return m2.MAV_RESULT_ACCEPTED, ""
 
     def _cmd_mission_start(self, p: list[float], link: MavlinkUdp, addr: Address) -> tuple[int, str]:
@@ -537,6 +574,7 @@ class GcsService:
             out += self.missions.set_current(active)
         if tau > traj.duration_s:
             self._mission_traj = None  # done: every item was reached by now
+            self._mission_done = True
         self._send_all(out)
 
     def _offboard_timeout(self, flight: Flight) -> None:

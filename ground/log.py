@@ -1,0 +1,270 @@
+"""Telemetry logs: record everything received to a pymavlink ``.tlog``, read it back, and turn
+the vehicle's telemetry into the columns of ``run.csv`` (the in-process simulator's CSV).
+
+A ``.tlog`` record is a big-endian uint64 unix time [us] followed by one MAVLink packet as
+received (heli_sitl.mavlink_link.TlogWriter; ``mavlogdump.py`` reads it).
+
+Columns (:data:`autopilot.metrics.CSV_HEADER`, the paper's NWU/FLU frames, SI units), one
+row per LOCAL_POSITION_NED of the vehicle:
+
+* ``t``: the vehicle's clock (LOCAL_POSITION_NED.time_boot_ms) [s] - the time the
+  controller saw, not the reception time, so network jitter does not bend the curves.
+* ``x, y, z``: LOCAL_POSITION_NED converted NED -> NWU (heli_sitl.frames).
+* ``phi, theta, psi``: the ATTITUDE of the same tick (FRD -> FLU); psi unwrapped, as run.csv.
+* ``x_cmd, y_cmd, z_cmd``: POSITION_TARGET_LOCAL_NED (10 Hz) interpolated linearly to the
+  row's time (the reference is smooth; holding it would lag by up to 100 ms, ~0.2 m at
+  2 m/s); held for up to :data:`STALE_S` after the last sample; NaN when there is no
+  target (disarmed: the vehicle sends none).
+* ``psi_cmd``: POSITION_TARGET_LOCAL_NED.yaw when the vehicle fills it in (a type_mask
+  without POSITION_TARGET_TYPEMASK_YAW_IGNORE). This vehicle does not (yet), so the TLC's
+  yaw command is rebuilt from the commanded path the way autopilot.tlc.controller forms
+  it: when a command stream starts, the path tangent atan2(y', x') if the commanded
+  horizontal speed exceeds the yaw-hold speed, else the measured yaw; then the integral
+  of the path's turn rate (x'y'' - x''y') / (x'^2 + y'^2), zero below the yaw-hold speed
+  (TLC_YAW_HOLD_V from the log's PARAM_VALUE, else the paper gains' 0.05 m/s). That is
+  exact for the exact-feedforward controller on smooth paths (the paper's spiral). With
+  the paper's pseudo-differentiators the controller differentiates the position command
+  itself: at the corner of two rest-to-rest waypoint legs its velocity estimate turns
+  through the corner while the exact path has no curvature, so its yaw command steps by
+  part of the corner angle there, which this rebuild does not show. NaN where there is
+  no command (disarmed).
+* ``theta_m, theta_t, eps, eta``: SERVO_OUTPUT_RAW (10 Hz, resampled like the targets)
+  mapped back through the inverse of heli_sitl.servo_map.to_pwm_us with the airframe's
+  pitch limits (or the LIM_* parameters seen in the log); the PWM quantum of 1 us is
+  (hi - lo) / 1000 rad of pitch, and a saturated command reads as its limit. The control
+  moves faster than 10 Hz, so these are a 10 Hz view of the pitches, not every tick's.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import struct
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from autopilot.metrics import CSV_HEADER
+from heli_sitl import frames, servo_map
+from heli_sitl.mavlink_link import Message, TlogWriter, mavlink2
+from heli_sitl.params import Airframe
+from heli_sitl.state import FloatArray
+
+__all__ = ["STALE_S", "TlogError", "TlogStats", "TlogWriter", "read_tlog", "tlog_columns", "write_csv"]
+
+Columns = dict[str, npt.NDArray[np.float64]]
+STALE_S = 0.35  # a 10 Hz message older than this (3.5 periods) is not "the current" one
+DEFAULT_YAW_HOLD_M_S = 0.05  # configs/gains_paper.toml yaw_hold_speed_m_s
+PITCH_PARAMS = (("LIM_TM_MIN", "LIM_TM_MAX"), ("LIM_TT_MIN", "LIM_TT_MAX"),
+                ("LIM_EPS_MIN", "LIM_EPS_MAX"), ("LIM_ETA_MIN", "LIM_ETA_MAX"))  # fmt: skip
+_V1_MAGIC, _V2_MAGIC = 0xFE, 0xFD
+_SIGNED = 0x01  # MAVLINK_IFLAG_SIGNED
+_MAX_SKEW_US = 86_400 * 10**6  # a record stamped a day away from its neighbour is garbage
+
+
+class TlogError(ValueError):
+    """A file that is not a telemetry log."""
+
+
+@dataclass
+class TlogStats:
+    records: int = 0
+    bad_bytes: int = 0  # skipped while resynchronising (corrupt or truncated records)
+
+
+def read_tlog(path: Path | str, stats: TlogStats | None = None) -> Iterator[tuple[float, Message]]:
+    """(unix time [s], message) for every valid record, in file order.
+
+    A corrupt stretch is skipped by resynchronising on the next plausible record (a known
+    magic byte, a time stamp near the previous one, a good CRC), as mavlogdump does; a
+    truncated last record (recording cut short) is ignored.
+    """
+    p = Path(path)
+    try:
+        data = p.read_bytes()
+    except OSError as exc:
+        raise TlogError(f"{p}: cannot read: {exc}") from exc
+    st = stats if stats is not None else TlogStats()
+    mav = mavlink2.MAVLink(None)
+    mav.robust_parsing = True
+    i, n = 0, len(data)
+    last_us: int | None = None
+    while i + 8 < n:
+        got = _record_at(mav, data, i, last_us)
+        if got is None:
+            i += 1
+            st.bad_bytes += 1
+            continue
+        t_us, msg, size = got
+        i += size
+        last_us = t_us
+        st.records += 1
+        yield t_us / 1e6, msg
+    st.bad_bytes += max(0, n - i)  # a truncated last record
+    if st.records == 0 and n > 0:
+        raise TlogError(f"{p}: no MAVLink records (not a .tlog?)")
+
+
+def _record_at(
+    mav: mavlink2.MAVLink, data: bytes, i: int, last_us: int | None
+) -> tuple[int, Message, int] | None:
+    """The record at offset ``i``: (time [us], message, size), or None if there is none."""
+    (t_us,) = struct.unpack_from(">Q", data, i)
+    if last_us is not None and abs(t_us - last_us) > _MAX_SKEW_US:
+        return None
+    j = i + 8
+    magic = data[j]
+    if magic == _V2_MAGIC and j + 3 <= len(data):
+        size = 12 + data[j + 1] + (13 if data[j + 2] & _SIGNED else 0)
+    elif magic == _V1_MAGIC and j + 2 <= len(data):
+        size = 8 + data[j + 1]
+    else:
+        return None
+    if j + size > len(data):
+        return None
+    mav.buf = bytearray()
+    mav.buf_index = 0
+    mav.expected_length = mavlink2.HEADER_LEN_V1 + 2
+    try:
+        msgs = mav.parse_buffer(data[j : j + size]) or []
+    except Exception:  # pymavlink raises assorted errors on garbage even when robust
+        return None
+    if len(msgs) != 1 or msgs[0].get_type() == "BAD_DATA":
+        return None
+    return t_us, msgs[0], 8 + size
+
+
+def _streams(path: Path | str, system_id: int, limits0: FloatArray) -> dict[str, Any]:
+    """One pass over the log: the vehicle's position rows and its 10 Hz streams, as arrays.
+
+    The pitch limits and the yaw-hold speed are taken as the log's PARAM_VALUEs say at
+    each moment (the limits can change while disarmed), starting from the airframe's.
+    """
+    limits = limits0.copy()
+    yaw_hold = DEFAULT_YAW_HOLD_M_S
+    rows: list[list[float]] = []  # t, x, y, z (NWU), phi, theta, psi (FLU), yaw-hold speed
+    tgt: list[list[float]] = []  # t, pos, vel, acc (NWU), psi command (NaN: not given)
+    srv: list[list[float]] = []  # t, theta_m, theta_t, eps, eta
+    last_att: tuple[float, float, float] | None = None
+    for _, m in read_tlog(path):
+        if m.get_srcSystem() != system_id:
+            continue
+        kind = m.get_type()
+        if kind == "ATTITUDE":
+            # The vehicle sends ATTITUDE and LOCAL_POSITION_NED of one tick together.
+            last_att = frames.euler_frd_to_flu((m.roll, m.pitch, m.yaw))
+        elif kind == "LOCAL_POSITION_NED" and last_att is not None:
+            rows.append([m.time_boot_ms / 1e3, *frames.ned_to_nwu((m.x, m.y, m.z)), *last_att, yaw_hold])
+        elif kind == "POSITION_TARGET_LOCAL_NED":
+            yaw_given = not m.type_mask & mavlink2.POSITION_TARGET_TYPEMASK_YAW_IGNORE
+            psi = frames.euler_frd_to_flu((0.0, 0.0, m.yaw))[2] if yaw_given else math.nan
+            tgt.append([m.time_boot_ms / 1e3, *frames.ned_to_nwu((m.x, m.y, m.z)),
+                        *frames.ned_to_nwu((m.vx, m.vy, m.vz)), *frames.ned_to_nwu((m.afx, m.afy, m.afz)),
+                        psi])  # fmt: skip
+        elif kind == "SERVO_OUTPUT_RAW":
+            pwm = np.array([m.servo1_raw, m.servo2_raw, m.servo3_raw, m.servo4_raw], dtype=float)
+            n = (pwm - servo_map.PWM_CENTRE_US) / servo_map.PWM_HALF_RANGE_US
+            # time_usec is 32 bits on the wire: place it next to the latest row's time
+            t_s = _unwrap_us32(int(m.time_usec), rows[-1][0] if rows else 0.0)
+            srv.append([t_s, *servo_map.from_normalized(n, limits)])
+        elif kind == "PARAM_VALUE":
+            name = str(m.param_id).split("\0", 1)[0]
+            if name == "TLC_YAW_HOLD_V":
+                yaw_hold = float(m.param_value)
+            for k, (lo_name, hi_name) in enumerate(PITCH_PARAMS):
+                if name == lo_name:
+                    limits[k, 0] = float(m.param_value)
+                elif name == hi_name:
+                    limits[k, 1] = float(m.param_value)
+    return {
+        "rows": np.array(rows, dtype=float).reshape(-1, 8),
+        "target": np.array(tgt, dtype=float).reshape(-1, 11),
+        "servo": np.array(srv, dtype=float).reshape(-1, 5),
+    }
+
+
+def _resample(t_rows: FloatArray, t_s: FloatArray, values: FloatArray) -> FloatArray:
+    """``values`` (sampled at ``t_s``) at ``t_rows``: linear between two samples at most
+    STALE_S apart, held up to STALE_S after the last one, NaN elsewhere (no stream)."""
+    out = np.full((t_rows.size, values.shape[1]), np.nan)
+    if t_s.size == 0:
+        return out
+    k = np.searchsorted(t_s, t_rows, side="right") - 1  # the sample at or before each row
+    for r, kk in enumerate(k):
+        if kk < 0 or t_rows[r] - t_s[kk] > STALE_S:
+            continue
+        if kk + 1 < t_s.size and t_s[kk + 1] - t_s[kk] <= STALE_S and t_s[kk + 1] > t_s[kk]:
+            w = (t_rows[r] - t_s[kk]) / (t_s[kk + 1] - t_s[kk])
+            out[r] = (1.0 - w) * values[kk] + w * values[kk + 1]
+        else:
+            out[r] = values[kk]
+    return out
+
+
+def tlog_columns(
+    path: Path | str, *, system_id: int = 1, airframe: Airframe | None = None
+) -> Columns:
+    """The run.csv columns (see the module docstring) from the vehicle's telemetry in a tlog."""
+    af = airframe or Airframe.load()
+    st = _streams(path, system_id, servo_map.limits_array(af.limits.as_tuple()))
+    rows, tgt, srv = st["rows"], st["target"], st["servo"]
+    t = rows[:, 0]
+    cmd = _resample(t, tgt[:, 0], tgt[:, 1:])
+    pitches = _resample(t, srv[:, 0], srv[:, 1:])
+    yaw = _YawCommand()
+    psi_cmd = np.array([
+        cmd[r, 9] if not math.isnan(cmd[r, 9]) else
+        yaw.at(t[r], None if math.isnan(cmd[r, 0]) else cmd[r], rows[r, 6], rows[r, 7])
+        for r in range(t.size)
+    ])  # fmt: skip
+    cols = {
+        "t": t, "x": rows[:, 1], "y": rows[:, 2], "z": rows[:, 3],
+        "phi": rows[:, 4], "theta": rows[:, 5], "psi": np.unwrap(rows[:, 6]) if t.size else rows[:, 6],
+        "x_cmd": cmd[:, 0], "y_cmd": cmd[:, 1], "z_cmd": cmd[:, 2], "psi_cmd": psi_cmd,
+        "theta_m": pitches[:, 0], "theta_t": pitches[:, 1], "eps": pitches[:, 2], "eta": pitches[:, 3],
+    }  # fmt: skip
+    return {k: np.ascontiguousarray(cols[k], dtype=float) for k in CSV_HEADER}
+
+
+def _unwrap_us32(t_us32: int, near_s: float) -> float:
+    period = 2**32
+    base = int(near_s * 1e6) - int(near_s * 1e6) % period
+    candidates = [base - period + t_us32, base + t_us32, base + period + t_us32]
+    return min(candidates, key=lambda c: abs(c - near_s * 1e6)) / 1e6
+
+
+class _YawCommand:
+    """The TLC's yaw command rebuilt from the commanded path (see the module docstring)."""
+
+    def __init__(self) -> None:
+        self.psi: float | None = None
+        self.t = -math.inf
+        self.rate = 0.0
+
+    def at(self, t: float, cmd: npt.NDArray[np.float64] | None, psi_meas: float, hold: float) -> float:
+        if cmd is None:
+            self.psi = None  # no command: the controller is reset (disarmed)
+            return math.nan
+        vx, vy, ax, ay = cmd[3], cmd[4], cmd[6], cmd[7]
+        v2 = vx * vx + vy * vy
+        rate = 0.0 if v2 <= hold * hold or v2 == 0.0 else (vx * ay - ax * vy) / v2
+        if self.psi is None:
+            self.psi = math.atan2(vy, vx) if v2 > hold * hold else psi_meas
+        else:
+            self.psi += 0.5 * (self.rate + rate) * max(0.0, t - self.t)  # trapezoid
+        self.t, self.rate = t, rate
+        return self.psi
+
+
+def write_csv(cols: Columns, path: Path | str) -> None:
+    """The columns as run.csv (same header, same number format)."""
+    with Path(path).open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(CSV_HEADER)
+        n = len(cols["t"])
+        for i in range(n):
+            w.writerow([f"{cols[h][i]:.9g}" for h in CSV_HEADER])

@@ -1,0 +1,220 @@
+"""MAVProxy (a real third-party ground station) against the vehicle of ``heli-sitl up``.
+
+MAVProxy runs as its own process on the vehicle's ground-station port
+(``--master=udpin:127.0.0.1:PORT``) and takes its commands on stdin, as typed at its
+console; ``--non-interactive`` would stop it reading stdin, so it is not used. It ends on
+EOF (exit code 1, always). What is checked: ``status`` shows the vehicle's telemetry,
+``param fetch`` gets all 43 parameters, ``wp load`` uploads a QGC WPL file written by
+ground.files that the helicopter then flies (armed and started with MAVProxy's own
+``arm throttle`` and ``long MISSION_START``), ``wp list`` downloads it back.
+
+The waypoint file uses MAV_FRAME_GLOBAL_RELATIVE_ALT: MAVProxy converts file items to
+MISSION_ITEM_INT by multiplying x/y by 1e7 for every positional command whatever the
+frame, so a local-frame file would be scaled wrongly. MAVProxy uploads line 0 (home) as
+item 0 too; on this vehicle that is a waypoint at home on the ground, flown first.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from autopilot import mission as ms
+from autopilot.geo import GeoPoint, nwu_to_geo
+from autopilot.mission import MissionItem
+from ground.client import GroundClient
+from ground.files import read_waypoints, write_waypoints
+from heli_sitl.demo import _die_with_parent, free_udp_port, spawn
+from heli_sitl.frames import flip
+from heli_sitl.mavlink_link import Message
+
+HOME = GeoPoint(47.397742, 8.545594, 488.0)
+START_S = 60.0
+
+
+class MavProxy:
+    """A MAVProxy process fed on stdin; its output is collected by a thread."""
+
+    def __init__(self, master_port: int, workdir: Path) -> None:
+        cmd = [sys.executable, "-m", "MAVProxy.mavproxy", f"--master=udpin:127.0.0.1:{master_port}",
+               "--no-state", f"--state-basedir={workdir}", "--source-system=255"]  # fmt: skip
+        # heli_sitl.demo.spawn gives no stdin pipe; the same parent-death signal is kept.
+        self.proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                     stderr=subprocess.STDOUT, cwd=workdir,
+                                     preexec_fn=_die_with_parent)  # fmt: skip
+        self._out: list[str] = []
+        self._lock = threading.Lock()
+        self._thread = threading.Thread(target=self._read, daemon=True)
+        self._thread.start()
+
+    def _read(self) -> None:
+        assert self.proc.stdout is not None
+        for raw in iter(self.proc.stdout.readline, b""):
+            with self._lock:
+                self._out.append(raw.decode(errors="replace"))
+
+    @property
+    def text(self) -> str:
+        with self._lock:
+            return "".join(self._out)
+
+    def mark(self) -> int:
+        return len(self.text)
+
+    def send(self, line: str) -> int:
+        """Type a command; returns the output position before it (for :meth:`expect`)."""
+        pos = self.mark()
+        assert self.proc.stdin is not None
+        self.proc.stdin.write((line + "\n").encode())
+        self.proc.stdin.flush()
+        return pos
+
+    def expect(self, pattern: str, timeout_s: float, since: int = 0) -> re.Match[str]:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            m = re.search(pattern, self.text[since:], re.MULTILINE)
+            if m:
+                return m
+            if self.proc.poll() is not None:
+                break
+            time.sleep(0.05)
+        tail = self.text[since:][-1500:]
+        raise AssertionError(f"MAVProxy: no {pattern!r} within {timeout_s} s; output tail:\n{tail}")
+
+    def close(self) -> int:
+        if self.proc.poll() is None and self.proc.stdin is not None:
+            self.proc.stdin.close()  # EOF: MAVProxy's way out when it reads a pipe
+        try:
+            return self.proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            return self.proc.wait()
+
+
+@contextmanager
+def vehicle_and_mavproxy(tmp_path: Path) -> Iterator[tuple[MavProxy, int]]:
+    ports: list[int] = []
+    while len(ports) < 4:
+        p = free_udp_port()
+        if p not in ports:
+            ports.append(p)
+    gcs, api, local_gcs, local_api = ports
+    up = spawn([sys.executable, "-m", "heli_sitl.cli", "up", "--gcs-port", str(gcs), "--api-port", str(api),
+                "--local-gcs-port", str(local_gcs), "--local-api-port", str(local_api)])  # fmt: skip
+    mp = None
+    try:
+        mp = MavProxy(gcs, tmp_path)
+        yield mp, api
+    finally:
+        if mp is not None:
+            mp.close()
+        if up.poll() is None:
+            up.send_signal(signal.SIGTERM)
+        try:
+            up.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            up.kill()
+            up.wait()
+
+
+def gwp(seq: int, north_m: float, west_m: float, up_m: float, cmd: int = ms.CMD_WAYPOINT) -> MissionItem:
+    g = nwu_to_geo(HOME, (north_m, west_m, 0.0))
+    lat, lon = round(g.lat_deg * 1e7), round(g.lon_deg * 1e7)
+    return MissionItem(seq, ms.FRAME_GLOBAL_REL, cmd, x=lat, y=lon, z=up_m)
+
+
+TELEMETRY = (
+    "HEARTBEAT", "SYS_STATUS", "ATTITUDE", "LOCAL_POSITION_NED", "GLOBAL_POSITION_INT",
+    "GPS_RAW_INT", "HOME_POSITION", "EXTENDED_SYS_STATE", "SERVO_OUTPUT_RAW", "MISSION_CURRENT",
+)  # fmt: skip
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(240)
+def test_mavproxy_status_params_and_a_flown_waypoint_file(tmp_path: Path) -> None:
+    items = [gwp(0, 0.0, 0.0, 2.0, ms.CMD_TAKEOFF), gwp(1, 3.0, 0.0, 2.0), gwp(2, 3.0, -2.0, 2.5),
+             MissionItem(3, ms.FRAME_GLOBAL_REL, ms.CMD_LAND, x=0, y=0, z=0.0)]  # fmt: skip
+    wp_file = tmp_path / "mission.waypoints"
+    write_waypoints(wp_file, items, HOME)
+    with vehicle_and_mavproxy(tmp_path) as (mp, api_port):
+        mp.expect(r"online system 1", START_S)
+        time.sleep(1.5)  # a second of telemetry for "status"
+
+        at = mp.send("status")
+        for kind in TELEMETRY:
+            mp.expect(rf"^\d+: {kind} \{{", 5.0, at)
+
+        t0 = time.monotonic()
+        at = mp.send("param fetch")
+        mp.expect(r"Received 43 parameters", 30.0, at)
+        fetch_s = time.monotonic() - t0
+        at = mp.send("param show TLC_L1_W_X")
+        mp.expect(r"TLC_L1_W_X\s+0\.1875", 5.0, at)
+
+        at = mp.send(f"wp load {wp_file}")
+        mp.expect(r"Loaded 5 waypoint", 10.0, at)
+        mp.expect(r"Sent all 5 waypoints", 10.0, at)
+
+        at = mp.send("wp list")
+        mp.expect(r"Requesting 5 waypoints", 10.0, at)
+        listed = mp.expect(r"((?:^.*\d+ \d+ -?\d+\.\d{10} -?\d+\.\d{10} .*cur=\d auto=\d\s*\n){5})", 10.0, at)
+        rows = [ln.split()[:5] for ln in listed.group(1).strip().splitlines()]
+        assert [r[0] for r in rows] == ["16", "22", "16", "16", "21"]  # home line, then ours
+
+        with GroundClient(api_port) as gc:
+            gc.connect(10.0)
+            stored = gc.download_mission()
+            # MAVProxy truncates x * 1e7 (wp_to_mission_item_int): at most 1e-7 deg (~1 cm) off
+            for got, want in zip(stored[1:], items, strict=True):
+                assert (got.command, got.frame) == (want.command, want.frame)
+                assert abs(got.x - want.x) <= 1 and abs(got.y - want.y) <= 1 and got.z == want.z
+            saved = tmp_path / "saved.waypoints"
+            at = mp.send(f"wp save {saved}")
+            mp.expect(r"Saved 5 waypoints", 10.0, at)
+            assert [it.command for it in read_waypoints(saved).items] == [22, 16, 16, 21]
+
+            positions: list[tuple[float, float, float]] = []
+
+            def record(m: Message) -> None:
+                if m.get_type() == "LOCAL_POSITION_NED":
+                    positions.append(flip((m.x, m.y, m.z)))
+
+            gc.listeners.append(record)
+            at = mp.send("arm throttle")
+            mp.expect(r"COMPONENT_ARM_DISARM: ACCEPTED", 5.0, at)
+            at = mp.send("long MISSION_START 0 0")
+            mp.expect(r"MISSION_START: ACCEPTED", 5.0, at)
+            t_fly = time.monotonic()
+            prog = gc.follow_mission(5, timeout_s=90.0)
+            gc.wait_landed(30.0)
+            fly_s = time.monotonic() - t_fly
+
+        pos = np.array(positions)
+        closest = []
+        for it in items[:3]:
+            target = np.array(nwu_target(it))
+            closest.append(float(np.linalg.norm(pos - target, axis=1).min()))
+        print(f"MAVProxy: param fetch {fetch_s:.1f} s; flight {fly_s:.1f} s ({prog.reason}); "
+              f"closest approach to items 1-3: {[round(c, 3) for c in closest]} m")
+        assert all(c < 1.0 for c in closest), closest
+        assert pos[-1][2] < 0.1  # landed
+    assert mp.proc.returncode == 1  # MAVProxy's exit status on EOF, whatever happened
+
+
+def nwu_target(item: MissionItem) -> tuple[float, float, float]:
+    p = ms.item_position_ned_m(item, HOME)
+    assert p.north_east_m is not None and p.down_m is not None
+    n, e, d = p.north_east_m[0], p.north_east_m[1], p.down_m
+    assert math.isfinite(n + e + d)
+    return flip((n, e, d))

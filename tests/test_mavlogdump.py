@@ -1,0 +1,233 @@
+"""A flight recorded by ``heli-ground log`` while ``heli-ground fly`` flies it, read back by
+pymavlink's own ``mavlogdump.py``, exported to CSV and plotted.
+
+The exported CSV is checked against the autopilot's own run.csv of the same flight
+(``heli-sitl up --out``): same clock (the vehicle's time_boot_ms), same numbers up to the
+float32 of the MAVLink fields and the 1 us PWM quantum of SERVO_OUTPUT_RAW.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import signal
+import subprocess
+import sys
+import time
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from autopilot import mission as ms
+from autopilot import telemetry
+from autopilot.geo import GeoPoint, nwu_to_geo
+from autopilot.metrics import CSV_HEADER
+from autopilot.mission import MissionItem
+from ground import cli
+from ground.files import write_waypoints
+from ground.log import TlogError, TlogStats, read_tlog, tlog_columns
+from heli_sitl import servo_map
+from heli_sitl.demo import _die_with_parent, free_udp_port, spawn
+from heli_sitl.mavlink_link import TlogWriter
+from heli_sitl.params import Airframe
+
+HOME = GeoPoint(47.397742, 8.545594, 488.0)
+MAVLOGDUMP = Path(sys.executable).with_name("mavlogdump.py")
+TELEMETRY = {
+    "HEARTBEAT", "SYS_STATUS", "ATTITUDE", "LOCAL_POSITION_NED", "GLOBAL_POSITION_INT", "GPS_RAW_INT",
+    "HOME_POSITION", "EXTENDED_SYS_STATE", "POSITION_TARGET_LOCAL_NED", "SERVO_OUTPUT_RAW",
+    "MISSION_CURRENT", "MISSION_ITEM_REACHED", "STATUSTEXT",
+}  # fmt: skip
+
+
+# ----------------------------------------------------------------------------- without processes
+
+
+def synthetic_tlog(path: Path, n: int = 40) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A vehicle's telemetry as GcsService sends it (the autopilot's own builders): 20 Hz
+    state, 10 Hz target and servos, from a 100 Hz flight north at 1 m/s, 2 m up."""
+    limits = servo_map.limits_array(Airframe.load().limits.as_tuple())
+    t = np.arange(n) * 0.05
+    x = np.zeros((n, 12))
+    x[:, 0], x[:, 2], x[:, 8] = t, 2.0, 0.2  # north at 1 m/s, 2 m up, psi 0.2 rad (state.PSI)
+    ref = np.zeros((n, 9))
+    ref[:, 0], ref[:, 2], ref[:, 3] = t + 0.1, 2.0, 1.0  # commanded 0.1 m ahead, moving north
+    u = np.column_stack([0.1 + 0.001 * np.arange(n), np.full(n, 0.05), np.zeros(n), np.full(n, -0.02)])
+    with TlogWriter(path) as w:
+        for k in range(n):
+            t_us = int(round(t[k] * 1e6))
+            msgs = telemetry.attitude_and_position(t_us, x[k])
+            if k % 2 == 0:
+                msgs += [telemetry.position_target(t_us, ref[k]), telemetry.servo_output(t_us, u[k], limits)]
+            w.write(1_700_000_000_000_000 + t_us, msgs)
+    return t, x, ref, u
+
+
+def test_tlog_columns_are_the_telemetry_in_paper_frames(tmp_path: Path) -> None:
+    tlog = tmp_path / "s.tlog"
+    t, x, ref, u = synthetic_tlog(tlog)
+    cols = tlog_columns(tlog)
+    assert np.allclose(cols["t"], t)
+    for i, k in enumerate(("x", "y", "z")):
+        assert np.allclose(cols[k], x[:, i], atol=1e-6)
+    assert np.allclose(cols["psi"], 0.2, atol=1e-6)
+    assert np.allclose(cols["x_cmd"][:-1], ref[:-1, 0], atol=1e-6)  # interpolated between 10 Hz samples
+    assert np.allclose(cols["z_cmd"], 2.0, atol=1e-6)
+    assert np.allclose(cols["psi_cmd"], 0.0)  # the path tangent: due north
+    lim = np.array(Airframe.load().limits.as_tuple())
+    quantum = (lim[:, 1] - lim[:, 0]) / 1000
+    for i, k in enumerate(("theta_m", "theta_t", "eps", "eta")):
+        assert np.all(np.abs(cols[k][::2] - u[::2, i]) <= 0.5 * quantum[i] + 1e-12), k
+
+
+def test_tlog_reader_resynchronises_after_garbage_and_a_cut(tmp_path: Path) -> None:
+    tlog = tmp_path / "s.tlog"
+    synthetic_tlog(tlog, n=20)
+    good = list(read_tlog(tlog))
+    data = tlog.read_bytes()
+    cut = len(data) // 2
+    damaged = tmp_path / "d.tlog"
+    damaged.write_bytes(data[:cut] + b"\xfd\x09garbage\x00\xfe" + data[cut:-7])
+    stats = TlogStats()
+    got = list(read_tlog(damaged, stats))
+    assert len(good) - 3 <= len(got) < len(good)  # the record hit by the garbage and the cut one
+    assert stats.bad_bytes > 0
+    assert [m.get_type() for _, m in got[-3:]] == [m.get_type() for _, m in good[-4:-1]]
+    not_a_log = tmp_path / "m.plan"
+    not_a_log.write_text('{"fileType": "Plan"}\n')
+    with pytest.raises(TlogError, match="no MAVLink records"):
+        list(read_tlog(not_a_log))
+
+
+# ----------------------------------------------------------------------------- a real flight
+
+
+def gwp(seq: int, north_m: float, up_m: float, cmd: int) -> MissionItem:
+    g = nwu_to_geo(HOME, (north_m, 0.0, 0.0))
+    lat, lon = round(g.lat_deg * 1e7), round(g.lon_deg * 1e7)
+    return MissionItem(seq, ms.FRAME_GLOBAL_REL_INT, cmd, x=lat, y=lon, z=up_m)
+
+
+def stop(proc: subprocess.Popen[bytes], timeout_s: float = 10.0) -> int:
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+    try:
+        return proc.wait(timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        return proc.wait()
+
+
+def read_run_csv(path: Path) -> dict[str, np.ndarray]:
+    with path.open() as fh:
+        rows = list(csv.reader(fh))
+    data = np.array(rows[1:], dtype=float)
+    return {h: data[:, i] for i, h in enumerate(rows[0])}
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(240)
+def test_heli_ground_log_is_read_by_mavlogdump_and_matches_the_autopilot(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    gcs, api, local_gcs, local_api = free_udp_port(), free_udp_port(), free_udp_port(), free_udp_port()
+    assert len({gcs, api, local_gcs, local_api}) == 4
+    mission = tmp_path / "hop.waypoints"
+    write_waypoints(mission, [gwp(0, 0.0, 2.0, ms.CMD_TAKEOFF), gwp(1, 3.0, 2.0, ms.CMD_WAYPOINT),
+                              MissionItem(2, ms.FRAME_GLOBAL_REL_INT, ms.CMD_LAND, z=0.0)], HOME)  # fmt: skip
+    tlog, csv_out, vdir = tmp_path / "flight.tlog", tmp_path / "flight.csv", tmp_path / "vehicle"
+    up = spawn([
+        sys.executable, "-m", "heli_sitl.cli", "up", "--gcs-port", str(gcs), "--api-port", str(api),
+        "--local-gcs-port", str(local_gcs), "--local-api-port", str(local_api), "--out", str(vdir),
+    ])  # fmt: skip
+    log = fly = None
+    try:
+        log = spawn([sys.executable, "-m", "ground.cli", "log", "--gcs-port", str(gcs), "--out", str(tlog),
+                     "--csv", str(csv_out)])  # fmt: skip
+        t0 = time.monotonic()
+        fly_cmd = [sys.executable, "-m", "ground.cli", "fly", str(mission), "--gcs-port", str(api),
+                   "--quiet", "--connect-timeout-s", "60"]  # fmt: skip
+        # spawn() would not capture stdout; the same parent-death signal is kept
+        fly = subprocess.Popen(fly_cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                               preexec_fn=_die_with_parent)  # fmt: skip
+        out, err = fly.communicate(timeout=150)
+        fly_s = time.monotonic() - t0
+        assert fly.returncode == 0, err.decode()
+        assert "landed and disarmed" in out.decode(), out.decode()
+        # A second, timed recording on the other port, in-process: --duration-s ends it.
+        short = tmp_path / "short.tlog"
+        assert cli.main(["log", "--gcs-port", str(api), "--out", str(short), "--duration-s", "1.0"]) == 0
+        assert "wrote" in capsys.readouterr().out
+        assert sum(1 for _ in read_tlog(short)) > 40
+        time.sleep(0.5)
+        assert stop(log) == 0  # SIGTERM ends a recording cleanly (then the CSV is exported)
+    finally:
+        for p in (fly, log):
+            if p is not None:
+                stop(p)
+        stop(up)  # the autopilot writes vehicle/run.csv as it exits
+    print(f"heli-ground fly: {fly_s:.1f} s wall")
+
+    # --- mavlogdump.py reads every record, with our time stamps
+    dump = subprocess.run([sys.executable, str(MAVLOGDUMP), "--format", "json", str(tlog)],
+                          capture_output=True, timeout=120, check=True)  # fmt: skip
+    records = [json.loads(line) for line in dump.stdout.decode().splitlines() if line.startswith("{")]
+    theirs = Counter(r["meta"]["type"] for r in records)
+    ours_list = list(read_tlog(tlog))
+    ours = Counter(m.get_type() for _, m in ours_list)
+    assert theirs == ours
+    assert set(ours) >= TELEMETRY, TELEMETRY - set(ours)
+    assert records[0]["meta"]["timestamp"] == pytest.approx(ours_list[0][0], abs=1e-6)
+    span = ours_list[-1][0] - ours_list[0][0]
+    rates = {k: round(ours[k] / span, 1) for k in ("ATTITUDE", "GLOBAL_POSITION_INT", "HEARTBEAT")}
+    print(f"tlog: {len(ours_list)} messages over {span:.1f} s; measured rates {rates} Hz")
+
+    # --- the exported CSV is the flight the autopilot recorded
+    with csv_out.open() as fh:
+        assert next(csv.reader(fh)) == list(CSV_HEADER)
+    cols = tlog_columns(tlog)
+    run = read_run_csv(vdir / "run.csv")
+    # run.csv counts flight time from arming, the telemetry the vehicle's clock from boot:
+    # find the arming time (a whole number of 10 ms ticks) that lines the two records up.
+    ours_ms = np.round(cols["t"] * 1e3).astype(int)
+    run_ms = np.round(run["t"] * 1e3).astype(int)
+    armed_at = int(ours_ms[np.flatnonzero(~np.isnan(cols["x_cmd"]))[0]])
+
+    def matched(offset_ms: int) -> tuple[np.ndarray, np.ndarray]:
+        _, i, j = np.intersect1d(ours_ms, run_ms + offset_ms, return_indices=True)
+        keep = ~np.isnan(cols["x_cmd"][i])
+        return i[keep], j[keep]
+
+    def misfit(offset_ms: int) -> float:
+        i, j = matched(offset_ms)
+        return float(np.mean(np.abs(cols["z"][i] - run["z"][j]) + np.abs(cols["x"][i] - run["x"][j])))
+
+    offset = min(range(armed_at - 500, armed_at + 500, 10), key=misfit)
+    i_ours, i_run = matched(offset)
+    assert i_ours.size > 200
+    print(f"armed at vehicle time {offset / 1e3:.2f} s; {i_ours.size} rows compared")
+    dev = {k: np.abs(cols[k][i_ours] - run[k][i_run]) for k in CSV_HEADER[1:]}
+    dev["psi"] = np.abs(np.angle(np.exp(1j * (cols["psi"][i_ours] - run["psi"][i_run]))))
+    stats = (f"{k} {np.median(v):.1e}/{np.percentile(v, 95):.1e}/{v.max():.1e}" for k, v in dev.items())
+    print("tlog CSV vs autopilot run.csv, |difference| median / p95 / max: " + "; ".join(stats))
+    for k in ("x", "y", "z", "phi", "theta", "psi"):
+        assert dev[k].max() < 1e-5, k  # the same tick's state, as float32 on the wire
+    for k in ("x_cmd", "y_cmd", "z_cmd"):
+        # 10 Hz samples interpolated to 20 Hz rows: exact on the samples, <= a dt^2 / 8
+        # between them (1.3 mm at 1 m/s^2); only a step of the reference (the land command
+        # starting where the vehicle is) is smeared over one interval.
+        assert np.median(dev[k]) < 1e-5 and np.percentile(dev[k], 95) < 3e-3, k
+    lim = np.array(Airframe.load().limits.as_tuple())
+    for n, k in enumerate(("theta_m", "theta_t", "eps", "eta")):
+        quantum = (lim[n, 1] - lim[n, 0]) / 1000  # 1 us of PWM
+        assert np.median(dev[k]) < 0.5 * quantum + 1e-9, k  # exact on the 10 Hz samples
+    assert np.percentile(dev["psi_cmd"], 95) < 0.01  # a vertical hop: the yaw command is held
+
+    # --- heli-ground plot
+    figs = tmp_path / "figs"
+    assert cli.main(["plot", str(tlog), "--out", str(figs)]) == 0
+    pngs = sorted(p.name for p in figs.glob("*.png"))
+    assert pngs == ["fig5_path3d.png", "fig6_position.png", "fig7_attitude.png", "fig8_controls.png"]
+    assert all((figs / p).stat().st_size > 10_000 for p in pngs)
