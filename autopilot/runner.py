@@ -8,6 +8,7 @@ using the newest state; it measures wake-up lateness, overruns and stale states.
 
 from __future__ import annotations
 
+import gc
 import logging
 import threading
 import time
@@ -71,23 +72,33 @@ class LoopStats:
 
 
 class Recorder:
-    """The flight as the controller saw it, one row per tick, for run.csv and summary.json."""
+    """The flight as the controller saw it, one row per tick, for run.csv and summary.json.
 
-    def __init__(self) -> None:
-        self.rows: list[tuple[float, FloatArray, FloatArray, FloatArray, FloatArray]] = []
+    Rows go into preallocated arrays (doubled when full): no Python object per tick, so
+    the garbage collector has nothing growing to rescan during the flight."""
+
+    WIDTH = 1 + 12 + 9 + N_PITCH + N_DIAG
+
+    def __init__(self, capacity: int = 16384) -> None:
+        self.buf = np.empty((capacity, self.WIDTH))
+        self.n = 0
 
     def add(self, t: float, x: FloatArray, ref: FloatArray, u: FloatArray, diag: FloatArray) -> None:
-        self.rows.append((t, x.copy(), ref.copy(), u.copy(), diag.copy()))
+        if self.n == self.buf.shape[0]:
+            self.buf = np.concatenate([self.buf, np.empty_like(self.buf)])
+        row = self.buf[self.n]
+        row[0] = t
+        row[1:13] = x
+        row[13:22] = ref
+        row[22 : 22 + N_PITCH] = u
+        row[22 + N_PITCH :] = diag
+        self.n += 1
 
     def record(self, wall_s: float, extra: dict[str, Any]) -> FlightRecord:
-        r = self.rows
+        b = self.buf[: self.n]
         return FlightRecord.from_ticks(
-            np.array([v[0] for v in r]),
-            np.array([v[1] for v in r]).reshape(-1, 12),
-            np.array([v[2] for v in r]).reshape(-1, 9),
-            np.array([v[3] for v in r]).reshape(-1, N_PITCH),
-            np.array([v[4] for v in r]).reshape(-1, N_DIAG),
-            wall_s, extra,
+            b[:, 0].copy(), b[:, 1:13].copy(), b[:, 13:22].copy(),
+            b[:, 22 : 22 + N_PITCH].copy(), b[:, 22 + N_PITCH :], wall_s, extra,
         )  # fmt: skip
 
 
@@ -168,6 +179,7 @@ class Runner:
     def run(self, stop: threading.Event) -> LoopStats:
         """Fly until stopped or the duration is over; ``wall_s`` counts from the first tick
         (not the wait for a starting plant)."""
+        gc.freeze()  # start-up objects (numba, scipy) never need rescanning during the flight
         if self.cfg.mode == "lockstep":
             self._run_lockstep(stop)
         else:

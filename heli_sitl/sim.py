@@ -9,6 +9,7 @@ and flags the autopilot silent after ``timeout_s``. Real time: the plant steps e
 
 from __future__ import annotations
 
+import gc
 import logging
 import threading
 import time
@@ -135,6 +136,7 @@ class PlantServer:
         return out
 
     def run(self, stop: threading.Event) -> SimStats:
+        gc.freeze()  # start-up objects never need rescanning while the plant runs
         if self.cfg.mode == "lockstep":
             self._run_lockstep(stop)
         else:
