@@ -29,13 +29,12 @@ from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from types import TracebackType
-from typing import Self
 
 import numpy as np
 
 from autopilot.geo import GeoPoint
 from autopilot.mission import MissionItem
+from heli_sitl.closing import Closing
 from heli_sitl.mavlink_link import LOOPBACK, Address, MavlinkUdp, Message, TlogWriter, mavlink2
 
 m2 = mavlink2
@@ -125,7 +124,7 @@ class MissionProgress:
     reason: str = ""  # why following ended: "all items reached", "mode ...", "disarmed"
 
 
-class GroundClient:
+class GroundClient(Closing):
     """Context manager: ``with GroundClient(14550) as gc: gc.connect(); gc.upload_mission(items)``."""
 
     def __init__(
@@ -162,14 +161,6 @@ class GroundClient:
         self._param_types: dict[str, int] = {}
 
     # ----------------------------------------------------------------- lifecycle
-
-    def __enter__(self) -> Self:
-        return self
-
-    def __exit__(
-        self, et: type[BaseException] | None, ev: BaseException | None, tb: TracebackType | None
-    ) -> None:
-        self.close()
 
     def close(self) -> None:
         self.link.close()

@@ -13,7 +13,6 @@ import math
 import os
 import signal
 import subprocess
-import sys
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -23,6 +22,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from vehicle import free_ports, spawn_up
 
 from autopilot import mission as ms
 from autopilot import trajectory_codec as codec
@@ -38,7 +38,7 @@ from ground.client import (
     px4_mode,
 )
 from ground.files import write_waypoints
-from heli_sitl.demo import free_udp_port, spawn
+from heli_sitl.demo import free_udp_port
 from heli_sitl.frames import flip
 from heli_sitl.mavlink_link import Message, mavlink2
 
@@ -58,25 +58,13 @@ class Vehicle:
     proc: subprocess.Popen[bytes]
 
 
-def _free_ports(n: int) -> list[int]:
-    ports: list[int] = []
-    while len(ports) < n:
-        p = free_udp_port()
-        if p not in ports:
-            ports.append(p)
-    return ports
-
-
 @contextmanager
 def running_vehicle(*extra: str) -> Iterator[Vehicle]:
     """``heli-sitl up`` on four random ports; stopped (SIGTERM, then SIGKILL) on exit."""
-    gcs, api, local_gcs, local_api = _free_ports(4)
-    proc = spawn([
-        sys.executable, "-m", "heli_sitl.cli", "up", "--gcs-port", str(gcs), "--api-port", str(api),
-        "--local-gcs-port", str(local_gcs), "--local-api-port", str(local_api), *extra,
-    ])  # fmt: skip
+    ports = free_ports()
+    proc = spawn_up(ports, *extra)
     try:
-        yield Vehicle(gcs, api, proc)
+        yield Vehicle(ports.gcs, ports.api, proc)
     finally:
         stop(proc)
 

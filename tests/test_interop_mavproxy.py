@@ -29,13 +29,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from vehicle import free_ports, spawn_up
 
 from autopilot import mission as ms
 from autopilot.geo import GeoPoint, nwu_to_geo
 from autopilot.mission import MissionItem
 from ground.client import GroundClient
 from ground.files import read_waypoints, write_waypoints
-from heli_sitl.demo import _die_with_parent, free_udp_port, spawn
+from heli_sitl.demo import _die_with_parent
 from heli_sitl.frames import flip
 from heli_sitl.mavlink_link import Message
 
@@ -104,18 +105,13 @@ class MavProxy:
 
 @contextmanager
 def vehicle_and_mavproxy(tmp_path: Path) -> Iterator[tuple[MavProxy, int]]:
-    ports: list[int] = []
-    while len(ports) < 4:
-        p = free_udp_port()
-        if p not in ports:
-            ports.append(p)
-    gcs, api, local_gcs, local_api = ports
-    up = spawn([sys.executable, "-m", "heli_sitl.cli", "up", "--gcs-port", str(gcs), "--api-port", str(api),
-                "--local-gcs-port", str(local_gcs), "--local-api-port", str(local_api)])  # fmt: skip
+    ports = free_ports()
+    gcs = ports.gcs
+    up = spawn_up(ports)
     mp = None
     try:
         mp = MavProxy(gcs, tmp_path)
-        yield mp, api
+        yield mp, ports.api
     finally:
         if mp is not None:
             mp.close()

@@ -15,7 +15,6 @@ import contextlib
 import math
 import signal
 import subprocess
-import sys
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -24,10 +23,10 @@ from typing import Any
 
 import numpy as np
 import pytest
+from vehicle import free_ports, spawn_up
 
 from autopilot import mission as ms
 from autopilot.geo import GeoPoint, nwu_to_geo
-from heli_sitl.demo import free_udp_port, spawn
 from heli_sitl.frames import flip
 
 try:
@@ -46,14 +45,9 @@ START_S = 60.0
 @contextmanager
 def running_vehicle() -> Iterator[int]:
     """``heli-sitl up`` on random ports; yields the API port (where MAVSDK listens)."""
-    ports: list[int] = []
-    while len(ports) < 4:
-        p = free_udp_port()
-        if p not in ports:
-            ports.append(p)
-    gcs, api, local_gcs, local_api = ports
-    proc = spawn([sys.executable, "-m", "heli_sitl.cli", "up", "--gcs-port", str(gcs), "--api-port", str(api),
-                  "--local-gcs-port", str(local_gcs), "--local-api-port", str(local_api)])  # fmt: skip
+    ports = free_ports()
+    api = ports.api
+    proc = spawn_up(ports)
     try:
         yield api
     finally:

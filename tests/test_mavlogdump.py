@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from vehicle import free_ports, spawn_up
 
 from autopilot import mission as ms
 from autopilot import telemetry
@@ -29,7 +30,7 @@ from ground import cli
 from ground.files import write_waypoints
 from ground.log import TlogError, TlogStats, read_tlog, tlog_columns
 from heli_sitl import servo_map
-from heli_sitl.demo import _die_with_parent, free_udp_port, spawn
+from heli_sitl.demo import _die_with_parent, spawn
 from heli_sitl.mavlink_link import TlogWriter
 from heli_sitl.params import Airframe
 
@@ -132,16 +133,13 @@ def read_run_csv(path: Path) -> dict[str, np.ndarray]:
 def test_heli_ground_log_is_read_by_mavlogdump_and_matches_the_autopilot(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    gcs, api, local_gcs, local_api = free_udp_port(), free_udp_port(), free_udp_port(), free_udp_port()
-    assert len({gcs, api, local_gcs, local_api}) == 4
+    ports = free_ports()
+    gcs, api = ports.gcs, ports.api
     mission = tmp_path / "hop.waypoints"
     write_waypoints(mission, [gwp(0, 0.0, 2.0, ms.CMD_TAKEOFF), gwp(1, 3.0, 2.0, ms.CMD_WAYPOINT),
                               MissionItem(2, ms.FRAME_GLOBAL_REL_INT, ms.CMD_LAND, z=0.0)], HOME)  # fmt: skip
     tlog, csv_out, vdir = tmp_path / "flight.tlog", tmp_path / "flight.csv", tmp_path / "vehicle"
-    up = spawn([
-        sys.executable, "-m", "heli_sitl.cli", "up", "--gcs-port", str(gcs), "--api-port", str(api),
-        "--local-gcs-port", str(local_gcs), "--local-api-port", str(local_api), "--out", str(vdir),
-    ])  # fmt: skip
+    up = spawn_up(ports, "--out", str(vdir))  # fmt: skip
     log = fly = None
     try:
         log = spawn([sys.executable, "-m", "ground.cli", "log", "--gcs-port", str(gcs), "--out", str(tlog),
