@@ -92,9 +92,8 @@ class Flight:
         if self.mode in FOLLOWING and self.trajectory is not None:
             tau = t_s - self.t0_s
             if tau <= self.trajectory.duration_s:
-                row: FloatArray = self.trajectory.sample(np.array([tau]))[0]
-                return row
-            end = self.trajectory.sample(np.array([self.trajectory.duration_s]))[0]
+                return self.trajectory.evaluate_row(tau)
+            end = self.trajectory.evaluate_row(self.trajectory.duration_s)
             self.hold_pos = end[0:3].copy()
             if self.mode is not Mode.LAND:  # a landing holds on the ground until disarmed
                 self.mode = Mode.HOLD

@@ -267,3 +267,15 @@ def test_uploaded_spiral_flies_like_the_in_process_reproduction() -> None:
     assert np.abs(got.pitches - ref.pitches).max() < 1e-2  # measured 4.4e-3 rad at 0.61 s
     late = ref.t_s > 20.0
     assert np.abs(got.x[late, 0:3] - ref.x[late, 0:3]).max() < 1e-4
+
+
+@settings(max_examples=50)
+@given(st.lists(st.floats(-5.0, 125.0), min_size=1, max_size=20))
+def test_scalar_evaluation_equals_sample(times: list[float]) -> None:
+    """evaluate_row (used every control tick) is sample() at one time, breaks and ends included."""
+    for traj in (_PAPER_DECODED, PaperSpiralCircle()):
+        for t in [*times, 0.0, 40.0, 39.75, 40.25, 120.0]:
+            np.testing.assert_allclose(traj.evaluate_row(t), traj.sample(np.array([t]))[0], atol=1e-9)
+
+
+_PAPER_DECODED = codec.decode(codec.encode_trajectory(PaperSpiralCircle(), 0.5, breaks_s=[40.0]))

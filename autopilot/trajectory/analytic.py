@@ -44,6 +44,16 @@ class PaperSpiralCircle(Trajectory):
         out[:, 8] = 0.0
         return out
 
+    def evaluate_row(self, t_s: float) -> FloatArray:
+        w = 2.0 * math.pi / self.period_s
+        r, s, c = self.radius_m, math.sin(w * t_s), math.cos(w * t_s)
+        climb = self.climb_rate_m_s
+        return np.array([
+            r * s, r * (c - 1.0), climb * min(t_s, self.climb_end_s),
+            r * w * c, -r * w * s, climb if t_s <= self.climb_end_s else 0.0,
+            -r * w * w * s, -r * w * w * c, 0.0,
+        ])  # fmt: skip
+
 
 @dataclass(frozen=True)
 class StraightLine(Trajectory):

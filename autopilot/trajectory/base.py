@@ -35,6 +35,12 @@ class Trajectory(ABC):
     def sample(self, t_s: npt.ArrayLike) -> FloatArray:
         """(N, 9) array: pos [m], vel [m/s], acc [m/s^2] in NWU at each time; NaN if unknown."""
 
+    def evaluate_row(self, t_s: float) -> FloatArray:
+        """``sample`` at one time, as the 9-vector the controller takes (once per control
+        tick: kinds override it with a scalar path that avoids array set-up)."""
+        row: FloatArray = self.sample(np.array([t_s]))[0]
+        return row
+
     def evaluate(self, t_s: float) -> Reference:
         row = self.sample(np.array([t_s]))[0]
         return Reference(row[0:3], row[3:6], row[6:9])

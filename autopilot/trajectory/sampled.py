@@ -22,6 +22,7 @@ acceleration (the controller then brakes to a hover there).
 
 from __future__ import annotations
 
+import bisect
 import itertools
 from collections.abc import Sequence
 
@@ -87,6 +88,11 @@ class SampledTrajectory(Trajectory):
                 for a, b in itertools.pairwise(cuts)
             ]
             self._pieces.append((starts, splines))
+        # The same splines as plain lists, for evaluate_row (one time per control tick).
+        self._scalar = [
+            (starts.tolist(), [sp.x.tolist() for sp in splines], [sp.c.tolist() for sp in splines])
+            for starts, splines in self._pieces
+        ]
 
     @property
     def t_s(self) -> FloatArray:
@@ -122,6 +128,24 @@ class SampledTrajectory(Trajectory):
                 out[sel, 3 + axis] = np.where(inside[sel], spline(tk, 1), 0.0)
                 out[sel, 6 + axis] = np.where(inside[sel], spline(tk, 2), 0.0)
         return out
+
+    def evaluate_row(self, t_s: float) -> FloatArray:
+        """As ``sample`` at one time, by evaluating the cubic pieces directly (~10x faster)."""
+        lo, hi = float(self._t[0]), float(self._t[-1])
+        t = min(max(float(t_s), lo), hi)
+        inside = lo <= float(t_s) <= hi
+        out = [0.0] * 9
+        for axis, (starts, knots, coefs) in enumerate(self._scalar):
+            piece = min(max(bisect.bisect_left(starts, t) - 1, 0), len(knots) - 1)
+            x, c = knots[piece], coefs[piece]
+            i = min(max(bisect.bisect_right(x, t) - 1, 0), len(x) - 2)
+            d = t - x[i]
+            c0, c1, c2, c3 = c[0][i], c[1][i], c[2][i], c[3][i]
+            out[axis] = ((c0 * d + c1) * d + c2) * d + c3
+            if inside:
+                out[3 + axis] = (3.0 * c0 * d + 2.0 * c1) * d + c2
+                out[6 + axis] = 6.0 * c0 * d + 2.0 * c1
+        return np.array(out)
 
     def yaw_nwu_rad(self, t_s: npt.ArrayLike) -> FloatArray:
         """Commanded yaw (NWU psi, in [-pi, pi)): linear between unwrapped samples; NaN if none."""
