@@ -73,6 +73,7 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
 from autopilot.geo import GeoPoint, geo_to_ned_m
+from heli_sitl.mavlink_link import addressed_to
 
 # MAV_MISSION_RESULT codes, named once so the rest of the module reads as the spec.
 ACCEPTED: int = mavlink.MAV_MISSION_ACCEPTED
@@ -749,9 +750,7 @@ class MissionServer:
 
     def _addressed_to_me(self, msg: Message) -> bool:
         """Broadcast (0) or our ids; messages for other systems are not ours to answer."""
-        ts = getattr(msg, "target_system", 0)
-        tc = getattr(msg, "target_component", 0)
-        return ts in (0, self.system_id) and tc in (0, self.component_id)
+        return addressed_to(msg, self.system_id, self.component_id)
 
     def _accept(self, items: tuple[MissionItem, ...]) -> int:
         """Whole-mission check, then replace the stored mission only if accepted."""

@@ -57,6 +57,7 @@ from pymavlink.dialects.v20 import common as mavlink
 from autopilot.geo import GeoPoint
 from autopilot.tlc.gains import CommandLimits, DifferentiatorGains, Gains, LoopGains
 from heli_sitl.config import spec
+from heli_sitl.mavlink_link import addressed_to
 from heli_sitl.params import PitchLimits
 
 Message = Any  # a pymavlink MAVLink_message (pymavlink is untyped)
@@ -411,9 +412,7 @@ class ParamTable:
 
     def _addressed_to_me(self, msg: Message) -> bool:
         # Spec: components answer requests addressed to them or to MAV_COMP_ID_ALL (0).
-        ts = getattr(msg, "target_system", 0)
-        tc = getattr(msg, "target_component", 0)
-        return ts in (0, self.system_id) and tc in (0, self.component_id)
+        return addressed_to(msg, self.system_id, self.component_id)
 
 
 def _param_name(param_id: str | bytes) -> str:

@@ -24,7 +24,10 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from heli_sitl.closing import Closing
 
-__all__ = ["LOOPBACK", "Address", "MavlinkUdp", "Message", "PortBusyError", "TlogWriter", "mavlink2"]
+__all__ = [
+    "LOOPBACK", "Address", "MavlinkUdp", "Message", "PortBusyError", "TlogWriter",
+    "addressed_to", "mavlink2",
+]  # fmt: skip
 
 Address = tuple[str, int]
 MAVLink = mavlink2.MAVLink
@@ -210,6 +213,13 @@ class MavlinkUdp(Closing):
             self.stats.by_type[name] = self.stats.by_type.get(name, 0) + 1
             good.append(m)
         return good
+
+
+def addressed_to(msg: Message, system_id: int, component_id: int) -> bool:
+    """A request for this component: targeted at it, or broadcast (0) at either level."""
+    ts = getattr(msg, "target_system", 0)
+    tc = getattr(msg, "target_component", 0)
+    return ts in (0, system_id) and tc in (0, component_id)
 
 
 def _finite_fields(m: Message) -> bool:
