@@ -6,16 +6,15 @@ non-zero with a one-line reason (busy port, a process died, timeout).
 
 from __future__ import annotations
 
-import ctypes
 import json
 import signal
 import socket
-import subprocess
 import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from heli_sitl.children import Child, describe_exit, spawn, stop_all
 from heli_sitl.mavlink_link import LOOPBACK
 
 
@@ -50,20 +49,6 @@ class DemoOptions:
 
 def _cmd(module: str) -> list[str]:
     return [sys.executable, "-m", module]
-
-
-def _die_with_parent() -> None:
-    """Child-side: get SIGTERM if this (the parent) process dies, however it dies (Linux)."""
-    try:
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
-    except (OSError, AttributeError):
-        pass
-
-
-def spawn(cmd: list[str]) -> subprocess.Popen[bytes]:
-    """Start a child whose stderr we keep for the failure reason; it dies with us."""
-    return subprocess.Popen(cmd, stderr=subprocess.PIPE, preexec_fn=_die_with_parent)
 
 
 def terminate_on_sigterm() -> None:
@@ -108,11 +93,11 @@ def run_demo(opts: DemoOptions) -> dict[str, object]:
                    str(opts.duration_s or scenario_duration_s(opts.scenario))]  # fmt: skip
     else:
         ap_cmd += ["--autostart"]
-    procs: list[tuple[str, subprocess.Popen[bytes]]] = []
+    procs: list[tuple[str, Child]] = []
     try:
         for name, cmd in (("plant", plant_cmd), ("autopilot", ap_cmd), ("ground", ground_cmd)):
             if cmd is not None:
-                procs.append((name, spawn(cmd)))
+                procs.append((name, spawn(cmd, name, opts.out / "logs" / f"{name}.log", echo=True)))
         limit = opts.timeout_s or (600.0 if opts.mode == "lockstep" else 400.0)
         deadline = time.monotonic() + limit
         # the flight is over when the ground script has landed (or the autopilot is done)
@@ -120,20 +105,20 @@ def run_demo(opts: DemoOptions) -> dict[str, object]:
         while leader.poll() is None:
             for name, p in procs:
                 if p.poll() is not None and p.returncode != 0:
-                    raise DemoError(f"{name} died: {_reason(p)}")
+                    raise DemoError(f"{name} died: {p.last_error_line()}")
             if time.monotonic() > deadline:
                 raise DemoError(f"timeout: the flight did not finish within {limit:.0f} s")
             time.sleep(0.05)
         if leader.returncode != 0:
             who = "ground script" if opts.via_ground else "autopilot"
-            raise DemoError(f"{who} failed: {_reason(leader)}")
+            raise DemoError(f"{who} failed: {leader.last_error_line()}")
         if opts.via_ground:  # the autopilot writes its record when told to stop
             autopilot = procs[1][1]
             autopilot.send_signal(signal.SIGTERM)
             if autopilot.wait(timeout=120) != 0:
-                raise DemoError(f"autopilot failed: {_reason(autopilot)}")
+                raise DemoError(f"autopilot failed: {autopilot.last_error_line()}")
     finally:
-        _stop_all(procs)
+        stop_all([p for _, p in procs])
     summary_path = opts.out / "summary.json"
     if not summary_path.is_file():
         raise DemoError("autopilot wrote no summary.json")
@@ -179,7 +164,9 @@ def up_commands(opts: UpOptions) -> list[tuple[str, list[str]]]:
 
 def serve(opts: UpOptions, stop_after_s: float | None = None) -> None:
     """Start plant and autopilot and keep them serving until Ctrl-C (or ``stop_after_s``)."""
-    procs = [(name, spawn(cmd)) for name, cmd in up_commands(opts)]
+    logs = Path(opts.out) / "logs" if opts.out else None
+    procs = [(name, spawn(cmd, name, logs / f"{name}.log" if logs else None, echo=True))
+             for name, cmd in up_commands(opts)]  # fmt: skip
     print(
         f"heli-sitl up: vehicle on UDP 127.0.0.1:{opts.gcs_port} (ground stations) and "
         f":{opts.api_port} (API clients); Ctrl-C to stop",
@@ -190,24 +177,12 @@ def serve(opts: UpOptions, stop_after_s: float | None = None) -> None:
         while stop_after_s is None or time.monotonic() - t0 < stop_after_s:
             for name, p in procs:
                 if p.poll() is not None:
-                    raise DemoError(f"{name} died: {_reason(p)}")
+                    raise DemoError(f"{name} died ({describe_exit(p.returncode)}): {p.last_error_line()}")
             time.sleep(0.2)
     except KeyboardInterrupt:
         pass
     finally:
-        _stop_all(procs)
-
-
-def _stop_all(procs: list[tuple[str, subprocess.Popen[bytes]]]) -> None:
-    for _, p in procs:
-        if p.poll() is None:
-            p.send_signal(signal.SIGTERM)
-    for _, p in procs:
-        try:
-            p.wait(timeout=5)
-        except subprocess.TimeoutExpired:
-            p.kill()
-            p.wait()
+        stop_all([p for _, p in procs])
 
 
 def scenario_file(name_or_path: str) -> Path:
@@ -222,9 +197,3 @@ def scenario_duration_s(name_or_path: str) -> float:
 
     _, table = read_toml(scenario_file(name_or_path))
     return float(table["run"]["duration_s"])
-
-
-def _reason(p: subprocess.Popen[bytes]) -> str:
-    err = p.stderr.read().decode(errors="replace").strip() if p.stderr else ""
-    lines = [ln for ln in err.splitlines() if ln.strip()]
-    return lines[-1] if lines else f"exit code {p.returncode}"

@@ -38,6 +38,7 @@ from ground.client import (
     px4_mode,
 )
 from ground.files import write_waypoints
+from heli_sitl.children import Child
 from heli_sitl.demo import free_udp_port
 from heli_sitl.frames import flip
 from heli_sitl.mavlink_link import Message, mavlink2
@@ -55,7 +56,7 @@ N_PARAMS = 43
 class Vehicle:
     gcs_port: int  # where the vehicle sends its ground-station link (we listen here)
     api_port: int  # where it sends its API link
-    proc: subprocess.Popen[bytes]
+    proc: Child
 
 
 @contextmanager
@@ -69,7 +70,7 @@ def running_vehicle(*extra: str) -> Iterator[Vehicle]:
         stop(proc)
 
 
-def stop(proc: subprocess.Popen[bytes]) -> None:
+def stop(proc: Child) -> None:
     if proc.poll() is None:
         proc.send_signal(signal.SIGTERM)  # heli-sitl up stops its children on SIGTERM
     try:

@@ -36,7 +36,7 @@ from autopilot.geo import GeoPoint, nwu_to_geo
 from autopilot.mission import MissionItem
 from ground.client import GroundClient
 from ground.files import read_waypoints, write_waypoints
-from heli_sitl.demo import _die_with_parent
+from heli_sitl.children import die_with_parent
 from heli_sitl.frames import flip
 from heli_sitl.mavlink_link import Message
 
@@ -53,7 +53,7 @@ class MavProxy:
         # heli_sitl.demo.spawn gives no stdin pipe; the same parent-death signal is kept.
         self.proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                      stderr=subprocess.STDOUT, cwd=workdir,
-                                     preexec_fn=_die_with_parent)  # fmt: skip
+                                     preexec_fn=die_with_parent)  # fmt: skip
         self._out: list[str] = []
         self._lock = threading.Lock()
         self._thread = threading.Thread(target=self._read, daemon=True)

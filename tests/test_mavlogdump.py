@@ -30,7 +30,7 @@ from ground import cli
 from ground.files import write_waypoints
 from ground.log import TlogError, TlogStats, read_tlog, tlog_columns
 from heli_sitl import servo_map
-from heli_sitl.demo import _die_with_parent, spawn
+from heli_sitl.children import Child, die_with_parent, spawn
 from heli_sitl.mavlink_link import TlogWriter
 from heli_sitl.params import Airframe
 
@@ -111,7 +111,7 @@ def gwp(seq: int, north_m: float, up_m: float, cmd: int) -> MissionItem:
     return MissionItem(seq, ms.FRAME_GLOBAL_REL_INT, cmd, x=lat, y=lon, z=up_m)
 
 
-def stop(proc: subprocess.Popen[bytes], timeout_s: float = 10.0) -> int:
+def stop(proc: Child | subprocess.Popen[bytes], timeout_s: float = 10.0) -> int:
     if proc.poll() is None:
         proc.send_signal(signal.SIGTERM)
     try:
@@ -149,7 +149,7 @@ def test_heli_ground_log_is_read_by_mavlogdump_and_matches_the_autopilot(
                    "--quiet", "--connect-timeout-s", "60"]  # fmt: skip
         # spawn() would not capture stdout; the same parent-death signal is kept
         fly = subprocess.Popen(fly_cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                               preexec_fn=_die_with_parent)  # fmt: skip
+                               preexec_fn=die_with_parent)  # fmt: skip
         out, err = fly.communicate(timeout=150)
         fly_s = time.monotonic() - t0
         assert fly.returncode == 0, err.decode()

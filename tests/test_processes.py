@@ -18,7 +18,8 @@ import pytest
 from autopilot.closed_loop import simulate
 from autopilot.scenario import Scenario
 from ground.plots import read_csv_columns
-from heli_sitl.demo import DemoError, DemoOptions, UpOptions, free_udp_port, run_demo, spawn, up_commands
+from heli_sitl.children import Child, spawn
+from heli_sitl.demo import DemoError, DemoOptions, UpOptions, free_udp_port, run_demo, up_commands
 from heli_sitl.mavlink_link import LOOPBACK, MavlinkUdp, mavlink2
 from heli_sitl.sim_protocol import command_message, state_messages
 
@@ -86,7 +87,7 @@ def _wait_for(link: MavlinkUdp, kind: str, timeout_s: float) -> object:
 
 
 @pytest.fixture
-def served() -> Iterator[tuple[UpOptions, list[subprocess.Popen[bytes]], MavlinkUdp]]:
+def served() -> Iterator[tuple[UpOptions, list[Child], MavlinkUdp]]:
     """`heli-sitl up` (real time, on the ground) with every port chosen here, and a GCS socket."""
     gcs = MavlinkUdp((LOOPBACK, 0), drop_nonfinite=False)
     opts = UpOptions(
@@ -160,8 +161,9 @@ def test_fuzz_both_processes_keep_flying(served) -> None:  # type: ignore[no-unt
     assert all(1000 <= getattr(servo, f"servo{i}_raw") <= 2000 for i in range(1, 5))
 
 
-def _json_from_stderr(p: subprocess.Popen[bytes]) -> dict[str, object]:
-    err = p.stderr.read().decode() if p.stderr else ""
+def _json_from_stderr(p: Child) -> dict[str, object]:
+    p.join_output()
+    err = p.output()
     for line in reversed(err.splitlines()):
         if line.startswith("{"):
             return json.loads(line)  # type: ignore[no-any-return]

@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-import subprocess
 import sys
 from typing import NamedTuple
 
-from heli_sitl.demo import free_udp_port, spawn
+from heli_sitl.children import Child, spawn
+from heli_sitl.demo import free_udp_port
 
 
 class UpPorts(NamedTuple):
@@ -25,7 +25,7 @@ def free_ports() -> UpPorts:
     return UpPorts(*ports)
 
 
-def spawn_up(ports: UpPorts, *extra: str) -> subprocess.Popen[bytes]:
+def spawn_up(ports: UpPorts, *extra: str) -> Child:
     return spawn([sys.executable, "-m", "heli_sitl.cli", "up", "--gcs-port", str(ports.gcs),
                   "--api-port", str(ports.api), "--local-gcs-port", str(ports.local_gcs),
                   "--local-api-port", str(ports.local_api), *extra])  # fmt: skip

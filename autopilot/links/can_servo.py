@@ -38,7 +38,6 @@ from heli_sitl.links.can_bus import (
     CanBus,
     CanBusConfig,
     CanSendError,
-    RateLimitedLog,
     open_bus,
 )
 from heli_sitl.links.can_servo import DEFAULT_TIMEOUT_S, CanServoEndpoint
@@ -52,6 +51,7 @@ from heli_sitl.links.dronecan_codec import (
     NodeStatusEncoder,
 )
 from heli_sitl.plant import Plant
+from heli_sitl.ratelog import RateLimitedLog
 from heli_sitl.state import N_PITCH, FloatArray
 
 log = logging.getLogger(__name__)

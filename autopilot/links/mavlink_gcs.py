@@ -30,6 +30,7 @@ from autopilot.trajectory.waypoints import FlightLimits, WaypointTrajectory
 from autopilot.trajectory_codec import check_mission, mission_to_trajectory
 from heli_sitl.kinematics import rot_body_to_earth
 from heli_sitl.mavlink_link import LOOPBACK, Address, MavlinkUdp, Message, mavlink2
+from heli_sitl.ratelog import RateLimitedLog
 from heli_sitl.state import EULER, POS, VEL, FloatArray
 
 log = logging.getLogger("autopilot.gcs")
@@ -159,6 +160,8 @@ class GcsService:
         self._flight: Flight | None = None
         self._prev_tau: float | None = None
         self._broken: set[int] = set()
+        self._errors = RateLimitedLog(log, interval_s=10.0)
+        self.handler_errors = 0
         self.mission_on_arm = False  # mission mode selected while disarmed
         self._mission_traj: WaypointTrajectory | None = None
         self._mission_done = False
@@ -169,7 +172,9 @@ class GcsService:
             link.close()
 
     def stats(self) -> dict[str, Any]:
-        return {f"gcs{i}": link.stats.as_dict() for i, link in enumerate(self.links)}
+        out: dict[str, Any] = {f"gcs{i}": link.stats.as_dict() for i, link in enumerate(self.links)}
+        out["handler_errors"] = self.handler_errors
+        return out
 
     # -- the runner's hooks ----------------------------------------------------------------
     def poll(self, t_s: float, x: FloatArray, flight: Flight) -> None:
@@ -180,7 +185,7 @@ class GcsService:
                 try:
                     self._dispatch(link, addr, msg)
                 except Exception:  # a handler bug must not take the vehicle down
-                    log.exception("error handling %s", msg.get_type())
+                    self._handler_error(msg.get_type())
         self._send_all(self.missions.tick(t_s))
         self._offboard_timeout(flight)
 
@@ -192,6 +197,13 @@ class GcsService:
         self._mission_progress(flight)
         self._auto_disarm(flight)
         self._telemetry()
+
+    def _handler_error(self, kind: str) -> None:
+        """Count a handler's exception; log it rate-limited (traceback once per kind): a
+        client repeating the request must not be able to flood the vehicle's stderr."""
+        self.handler_errors += 1
+        self._errors(logging.ERROR, kind, self._t, "error handling %s (%d handler errors so far)",
+                     kind, self.handler_errors, exc_info=True)  # fmt: skip
 
     # -- sending --------------------------------------------------------------------------
     def _send_all(self, msgs: list[Message]) -> None:
@@ -291,9 +303,7 @@ class GcsService:
             return m2.MAVLink_autopilot_version_message(
                 CAPABILITIES, 0x00010000, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, 1, [0] * 18
             )
-        if msg_id == m2.MAVLINK_MSG_ID_PROTOCOL_VERSION:
-            return m2.MAVLink_protocol_version_message(200, 100, 200, [0] * 8, [0] * 8)
-        return None
+        return None  # not built by this vehicle (PROTOCOL_VERSION: not in pymavlink's common)
 
     def _vel_ned(self) -> tuple[float, float, float]:
         e = self._x[EULER]
@@ -382,7 +392,11 @@ class GcsService:
         if handler is None:
             self._ack(link, addr, msg, m2.MAV_RESULT_UNSUPPORTED)
             return
-        result, text = handler(self, p, link, addr)
+        try:
+            result, text = handler(self, p, link, addr)
+        except Exception:  # every command gets its one ACK, whatever went wrong
+            self._handler_error(f"command {cmd}")
+            result, text = m2.MAV_RESULT_FAILED, ""
         if text:
             self.statustext(
                 m2.MAV_SEVERITY_INFO if result == m2.MAV_RESULT_ACCEPTED else m2.MAV_SEVERITY_WARNING,

@@ -27,7 +27,6 @@ on a full queue; the failure is raised as :class:`CanSendError` for the caller t
 
 from __future__ import annotations
 
-import logging
 from dataclasses import dataclass, replace
 from typing import Literal, cast, get_args
 
@@ -165,25 +164,3 @@ class CanBus(Closing):
 def open_bus(config: CanBusConfig | str) -> CanBus:
     """Open a bus from a config or a spec string (``virtual:chan`` ...)."""
     return CanBus(parse_bus_spec(config) if isinstance(config, str) else config)
-
-
-class RateLimitedLog:
-    """Logs each kind of event at most once per ``interval_s`` of the caller's time.
-
-    A fault repeating at the control rate (a dead bus at 100 Hz) would otherwise flood the
-    log; the line carries the running count, so nothing is hidden. Time is passed in:
-    link code reads no clock.
-    """
-
-    def __init__(self, logger: logging.Logger, interval_s: float = 1.0) -> None:
-        self.logger = logger
-        self.interval_s = interval_s
-        self._last_s: dict[str, float] = {}
-
-    def __call__(self, level: int, kind: str, now_s: float, msg: str, *args: object) -> bool:
-        last = self._last_s.get(kind)
-        if last is not None and abs(now_s - last) < self.interval_s:
-            return False
-        self._last_s[kind] = now_s
-        self.logger.log(level, msg, *args, stacklevel=2)  # report the caller's line
-        return True

@@ -51,7 +51,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from heli_sitl.closing import Closing
-from heli_sitl.links.can_bus import CanBus, CanBusConfig, CanBusError, RateLimitedLog, open_bus
+from heli_sitl.links.can_bus import CanBus, CanBusConfig, CanBusError, open_bus
 from heli_sitl.links.dronecan_codec import (
     ARRAY_COMMAND_DTID,
     COMMAND_TYPE_POSITION,
@@ -66,6 +66,7 @@ from heli_sitl.links.dronecan_codec import (
 )
 from heli_sitl.params import PitchLimits
 from heli_sitl.plant import accept_pitches
+from heli_sitl.ratelog import RateLimitedLog
 from heli_sitl.state import N_PITCH, PITCH_NAMES, FloatArray
 
 log = logging.getLogger(__name__)

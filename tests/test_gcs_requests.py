@@ -1,0 +1,116 @@
+"""No request can freeze the vehicle: every command is answered, and no child's output blocks it.
+
+A ground station may ask for any message id (QGroundControl asks for several the vehicle
+does not build while it connects). Each COMMAND_LONG addressed to the vehicle gets exactly
+one COMMAND_ACK whatever its parameters, heartbeats keep flowing, and the vehicle still
+flies afterwards. The launcher drains its children's stderr, so a child that writes a lot
+never blocks on a full pipe.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from test_ground_client import client, gwp, running_vehicle
+
+from autopilot import mission as ms
+from ground.client import GroundClient
+from heli_sitl.children import spawn
+from heli_sitl.mavlink_link import Message, mavlink2
+
+m2 = mavlink2
+UNKNOWN_IDS = (299, 300, 397, 435, 436, 437, 12_900, 65_535, 16_777_215)  # not built / not defined
+REPEATS = 3
+BATCH = 16  # in flight at once: well inside the vehicle's socket buffer
+
+
+def _requests() -> list[tuple[int, float, float]]:
+    """(command, param1, param2) for every message id of the common dialect and a few more."""
+    ids = sorted(set(m2.mavlink_map) | set(UNKNOWN_IDS))
+    out: list[tuple[int, float, float]] = []
+    for _ in range(REPEATS):
+        for msg_id in ids:
+            out.append((m2.MAV_CMD_REQUEST_MESSAGE, float(msg_id), 0.0))
+            out.append((m2.MAV_CMD_SET_MESSAGE_INTERVAL, float(msg_id), 200_000.0))
+            out.append((m2.MAV_CMD_SET_MESSAGE_INTERVAL, float(msg_id), 0.0))  # back to the default
+    return out
+
+
+def _send_and_count_acks(gc: GroundClient, reqs: list[tuple[int, float, float]]) -> dict[int, int]:
+    """Send in batches and count the ACKs of each batch by result (an ACK does not echo
+    the message id, so the count per batch is what is checked)."""
+    acks: dict[int, int] = {}
+    for start in range(0, len(reqs), BATCH):
+        batch = reqs[start : start + BATCH]
+        for cmd, p1, p2 in batch:
+            gc.send(m2.MAVLink_command_long_message(1, 1, cmd, 0, p1, p2, 0, 0, 0, 0, 0))
+        got = 0
+        deadline = time.monotonic() + 5.0
+        while got < len(batch) and time.monotonic() < deadline:
+            m = gc.recv_match(lambda m: m.get_type() == "COMMAND_ACK" and gc.from_vehicle(m), 0.5)
+            if m is not None:
+                acks[int(m.result)] = acks.get(int(m.result), 0) + 1
+                got += 1
+        assert got == len(batch), f"batch at {start}: {got} of {len(batch)} acknowledged"
+    return acks
+
+
+@pytest.mark.slow
+def test_every_message_request_is_answered_and_the_vehicle_still_flies(tmp_path: Path) -> None:
+    reqs = _requests()
+    with running_vehicle("--out", str(tmp_path)) as v, client(v.gcs_port) as gc:
+        acks = _send_and_count_acks(gc, reqs)
+        assert sum(acks.values()) == len(reqs)
+        assert acks.get(m2.MAV_RESULT_FAILED, 0) == 0, acks  # no handler error
+        assert acks.get(m2.MAV_RESULT_ACCEPTED, 0) > 0 and acks.get(m2.MAV_RESULT_DENIED, 0) > 0
+        # heartbeats still flow, at about 1 Hz
+        t0 = time.monotonic()
+        beats = 0
+        while time.monotonic() - t0 < 3.0:
+            if gc.recv_match(lambda m: m.get_type() == "HEARTBEAT" and gc.from_vehicle(m), 0.5):
+                beats += 1
+        assert beats >= 2
+        # and the vehicle still flies: a take-off to 2.5 m and a landing
+        gc.upload_mission([gwp(0, 0.0, 0.0, 2.5, ms.CMD_TAKEOFF),
+                           ms.MissionItem(1, ms.FRAME_GLOBAL_REL_INT, ms.CMD_LAND, z=0.0)])  # fmt: skip
+        gc.arm()
+        gc.start_mission()
+        top = 0.0
+        deadline = time.monotonic() + 30.0
+        while time.monotonic() < deadline and top < 2.3:
+            m: Message | None = gc.recv_match(
+                lambda m: m.get_type() == "LOCAL_POSITION_NED" and gc.from_vehicle(m), 1.0
+            )
+            if m is not None:
+                top = max(top, -float(m.z))
+        assert top >= 2.3, f"climbed to {top:.2f} m only"
+        assert v.proc.poll() is None
+    # the launcher wrote each child's output to the run's directory
+    assert (tmp_path / "logs" / "autopilot.log").is_file()
+    assert (tmp_path / "logs" / "plant.log").is_file()
+
+
+def test_a_child_writing_megabytes_to_stderr_is_not_blocked(tmp_path: Path) -> None:
+    """8 MB to stderr, far beyond a pipe's 64 KiB: the child finishes, its last line is kept."""
+    code = (
+        "import sys\n"
+        "line = 'x' * 1023 + '\\n'\n"
+        "for _ in range(8192):\n"
+        "    sys.stderr.write(line)\n"
+        "sys.stderr.write('the last line\\n')\n"
+    )
+    child = spawn([sys.executable, "-c", code], "chatty", tmp_path / "chatty.log")
+    assert child.wait(timeout=60) == 0
+    child.join_output()
+    assert child.last_error_line() == "the last line"
+    assert child.lines == 8193
+    assert (tmp_path / "chatty.log").stat().st_size == 8192 * 1024 + len("the last line\n")
+
+
+def test_a_dead_child_is_reported_by_name_of_its_signal() -> None:
+    child = spawn([sys.executable, "-c", "import os, signal; os.kill(os.getpid(), signal.SIGKILL)"], "victim")
+    child.wait(timeout=30)
+    assert child.last_error_line() == "killed by SIGKILL"
