@@ -20,8 +20,9 @@ demo: $(STAMP)
 	@echo "demo outputs in $(OUT)/ (run.csv, summary.json, fig5..fig8 PNGs)"
 
 lint: $(STAMP)
-	$(BIN)/ruff check heli_sitl autopilot ground tests benchmarks
+	$(BIN)/ruff check heli_common heli_sitl autopilot ground tests benchmarks
 	$(BIN)/mypy
+	$(BIN)/lint-imports --no-cache
 
 test: lint
 	$(BIN)/python -m heli_sitl.warmup

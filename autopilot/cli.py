@@ -15,7 +15,6 @@ from types import FrameType
 import numpy as np
 
 from autopilot.flight_log import write_flight_tlog
-from autopilot.geo import GeoPoint
 from autopilot.links.can_servo import CanServoSender
 from autopilot.links.mavlink_gcs import GcsConfig, GcsService
 from autopilot.links.mavlink_sim import SimLink
@@ -24,10 +23,11 @@ from autopilot.params_table import ParamTable
 from autopilot.runner import Recorder, Runner, RunnerConfig, ServoOutput, TickHook
 from autopilot.scenario import Scenario
 from autopilot.tlc.controller import TLController
-from heli_sitl.config import ConfigError
-from heli_sitl.mavlink_link import LOOPBACK, PortBusyError
-from heli_sitl.servo_link import add_servo_args, load_servo_link, with_overrides
-from heli_sitl.servo_map import limits_array
+from heli_common.config import ConfigError
+from heli_common.geo import GeoPoint
+from heli_common.mavlink.udp import LOOPBACK, PortBusyError
+from heli_common.servo_link import add_servo_args, load_servo_link, with_overrides
+from heli_common.servo_map import limits_array
 
 log = logging.getLogger("autopilot")
 

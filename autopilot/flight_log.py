@@ -12,8 +12,8 @@ from pathlib import Path
 
 from autopilot import telemetry
 from autopilot.metrics import FlightRecord
-from heli_sitl.mavlink_link import TlogWriter, mavlink2
-from heli_sitl.state import FloatArray
+from heli_common.mavlink.udp import TlogWriter, mavlink2
+from heli_common.state import FloatArray
 
 
 def heartbeat(armed: bool) -> mavlink2.MAVLink_heartbeat_message:

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from heli_sitl.state import EULER, PHI, POS, PSI, THETA, FloatArray
+from heli_common.state import EULER, PHI, POS, PSI, THETA, FloatArray
 
 CSV_HEADER = (
     "t", "x", "y", "z", "phi", "theta", "psi",

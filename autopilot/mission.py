@@ -52,7 +52,7 @@ Protocol (https://mavlink.io/en/services/mission.html), and the choices made her
   MAV_FRAME_MISSION for items without a position (RTL, DO_CHANGE_SPEED, the trajectory
   header). MAV_FRAME_LOCAL_ENU is refused (MAV_MISSION_UNSUPPORTED_FRAME): neither PX4
   nor ArduPilot take it in missions, and an ENU <-> NED change would be a second place
-  where frames change besides heli_sitl.frames. Terrain frames are refused (no terrain).
+  where frames change besides heli_common.frames. Terrain frames are refused (no terrain).
 * Commands: NAV_TAKEOFF, NAV_WAYPOINT, NAV_LOITER_TIME, NAV_LAND, NAV_RETURN_TO_LAUNCH,
   DO_CHANGE_SPEED, and the two commands of the timed-trajectory encoding
   (:mod:`autopilot.trajectory_codec`): MAV_CMD_USER_1 (header) and
@@ -72,8 +72,8 @@ from typing import Any, ClassVar
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
-from autopilot.geo import GeoPoint, geo_to_ned_m
-from heli_sitl.mavlink_link import addressed_to
+from heli_common.geo import GeoPoint, geo_to_ned_m
+from heli_common.mavlink.udp import addressed_to
 
 # MAV_MISSION_RESULT codes, named once so the rest of the module reads as the spec.
 ACCEPTED: int = mavlink.MAV_MISSION_ACCEPTED

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from autopilot.trajectory.base import Trajectory
-from heli_sitl.state import POS, VEL, FloatArray
+from heli_common.state import POS, VEL, FloatArray
 
 LANDED_ALT_M = 0.05
 LANDED_SPEED_M_S = 0.2

@@ -54,11 +54,11 @@ from typing import Any, ClassVar, Literal
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
-from autopilot.geo import GeoPoint
 from autopilot.tlc.gains import CommandLimits, DifferentiatorGains, Gains, LoopGains
-from heli_sitl.config import spec
-from heli_sitl.mavlink_link import addressed_to
-from heli_sitl.params import PitchLimits
+from heli_common.airframe import PitchLimits
+from heli_common.config import spec
+from heli_common.geo import GeoPoint
+from heli_common.mavlink.udp import addressed_to
 
 Message = Any  # a pymavlink MAVLink_message (pymavlink is untyped)
 

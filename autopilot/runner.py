@@ -22,8 +22,8 @@ from autopilot.links.mavlink_sim import SimLink
 from autopilot.metrics import FlightRecord
 from autopilot.modes import Flight
 from autopilot.tlc.controller import N_DIAG, OK, TLController
-from heli_sitl.sim_protocol import StateSample
-from heli_sitl.state import N_PITCH, FloatArray
+from heli_common.mavlink.sim_protocol import StateSample
+from heli_common.state import N_PITCH, FloatArray
 
 log = logging.getLogger("autopilot.runner")
 LOCKSTEP_SPIN_S = 0.002  # poll this long before sleeping (see MavlinkUdp.wait)

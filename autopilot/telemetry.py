@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-from heli_sitl import frames, servo_map
-from heli_sitl.mavlink_link import Message, mavlink2
-from heli_sitl.sim_protocol import state_fields
-from heli_sitl.state import FloatArray
+from heli_common import frames, servo_map
+from heli_common.mavlink.sim_protocol import state_fields
+from heli_common.mavlink.udp import Message, mavlink2
+from heli_common.state import FloatArray
 
 # POSITION_TARGET_LOCAL_NED type_mask: position, velocity and acceleration used; yaw, yaw rate not
 TYPE_MASK_PVA = (

@@ -40,7 +40,7 @@ The spline's own error at 0.5 s is tiny (pos 7e-7 m, vel 9e-6 m/s, acc 7e-5 m/s^
 0.1 mm x/y quantum, differentiated, dominates and grows as the step shrinks, so steps
 below ~0.5 s make the acceleration feedforward noisier, not better.
 
-Closed loop (autopilot.closed_loop.simulate, paper scenario, 100 Hz): flying the decoded
+Closed loop (heli_sitl.closed_loop.simulate, paper scenario, 100 Hz): flying the decoded
 0.5 s upload instead of the analytic spiral changes the flown position by at most
 9e-5 m, the attitude by 2.5e-4 rad and the blade pitches by 6e-5 rad with the paper's
 pseudo-differentiator feedforward (9e-5 m / 4.2e-4 rad / 1e-4 rad with exact feedforward).
@@ -56,7 +56,6 @@ import numpy as np
 import numpy.typing as npt
 
 from autopilot import mission as ms
-from autopilot.geo import GeoPoint
 from autopilot.trajectory.base import Trajectory
 from autopilot.trajectory.sampled import SampledTrajectory
 from autopilot.trajectory.waypoints import (
@@ -64,8 +63,9 @@ from autopilot.trajectory.waypoints import (
     MissionBuildError,
     build_waypoint_trajectory,
 )
-from heli_sitl.frames import flip
-from heli_sitl.state import FloatArray
+from heli_common.frames import flip
+from heli_common.geo import GeoPoint
+from heli_common.state import FloatArray
 
 FORMAT_VERSION = 1
 MAGIC = 0x544C4354  # "TLCT"
@@ -114,7 +114,7 @@ def encode(
     ]
     for i in range(n):
         north, east, down = flip(pos[i])
-        # NED yaw is clockwise from north: psi_ned = -psi_nwu (heli_sitl.frames).
+        # NED yaw is clockwise from north: psi_ned = -psi_nwu (heli_common.frames).
         yaw_deg = math.nan if yaw is None else _wrap_deg(-math.degrees(float(yaw[i])))
         items.append(
             ms.MissionItem(

@@ -19,15 +19,16 @@ import time
 
 import numpy as np
 
-from autopilot.closed_loop import simulate
-from autopilot.links.can_servo import CanServoSender, fly_over_can
+from autopilot.links.can_servo import CanServoSender
 from autopilot.scenario import Scenario
 from benchmarks import Row as TableRow
 from benchmarks import bench
-from heli_sitl.links.can_bus import CanBusConfig
-from heli_sitl.links.can_servo import CanServoEndpoint
-from heli_sitl.links.dronecan_codec import ArrayCommandEncoder, float16_round
-from heli_sitl.params import Airframe
+from heli_common.airframe import Airframe
+from heli_common.can.bus import CanBusConfig
+from heli_common.can.dronecan_codec import ArrayCommandEncoder, float16_round
+from heli_sitl.can_closed_loop import fly_over_can
+from heli_sitl.closed_loop import simulate
+from heli_sitl.plant.can_endpoint import CanServoEndpoint
 
 Row = tuple[str, float, str, str]
 TICK_HZ = 100.0

@@ -14,13 +14,13 @@ from functools import cache
 
 import numpy as np
 
-from autopilot.closed_loop import SimOptions, simulate
 from autopilot.metrics import FlightRecord
 from autopilot.scenario import Scenario
 from autopilot.tlc.controller import N_DIAG, TLController, tlc_kernel
 from benchmarks import Row, above, below, bench
-from heli_sitl.plant import Plant, plant_step
-from heli_sitl.state import N_PITCH, POS
+from heli_common.state import N_PITCH, POS
+from heli_sitl.closed_loop import SimOptions, simulate
+from heli_sitl.plant.model import Plant, plant_step
 
 SCENARIO = "paper"
 

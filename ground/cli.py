@@ -28,7 +28,7 @@ from ground.client import (
 )
 from ground.files import FileFormatError, MissionFile, load_mission
 from ground.log import TlogError, tlog_columns, write_csv
-from heli_sitl.mavlink_link import PortBusyError, TlogWriter, mavlink2
+from heli_common.mavlink.udp import PortBusyError, TlogWriter, mavlink2
 
 PROG = "heli-ground"
 HOME_MISMATCH_M = 1.0  # warn when a file's home is farther than this from the vehicle's
@@ -94,7 +94,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if argv is None:  # run as a program (not called from Python): SIGTERM ends it as Ctrl-C does,
-        from heli_sitl.demo import terminate_on_sigterm  # so a .tlog is closed, not cut
+        from heli_common.process import terminate_on_sigterm  # so a .tlog is closed, not cut
 
         terminate_on_sigterm()
     func: Callable[[argparse.Namespace], int] = args.func
@@ -141,7 +141,7 @@ def _check_home(gc: GroundClient, mf: MissionFile) -> None:
     positions are about the vehicle's home, not the file's."""
     if mf.home is None:
         return
-    from autopilot.geo import geo_to_ned_m
+    from heli_common.geo import geo_to_ned_m
 
     try:
         home = gc.home()

@@ -1,4 +1,4 @@
-"""A small ground-station client: one UDP socket (heli_sitl.mavlink_link.MavlinkUdp), no
+"""A small ground-station client: one UDP socket (heli_common.mavlink.udp.MavlinkUdp), no
 pymavlink ``mavutil`` global state, every wait bounded.
 
 The client binds the port the vehicle sends to (``--gcs-port``, 14550 by default: the
@@ -32,10 +32,10 @@ from pathlib import Path
 
 import numpy as np
 
-from autopilot.geo import GeoPoint
 from autopilot.mission import MissionItem
-from heli_sitl.closing import Closing
-from heli_sitl.mavlink_link import LOOPBACK, Address, MavlinkUdp, Message, TlogWriter, mavlink2
+from heli_common.closing import Closing
+from heli_common.geo import GeoPoint
+from heli_common.mavlink.udp import LOOPBACK, Address, MavlinkUdp, Message, TlogWriter, mavlink2
 
 m2 = mavlink2
 

@@ -51,11 +51,11 @@ import numpy.typing as npt
 
 from autopilot import mission as ms
 from autopilot import trajectory_codec as codec
-from autopilot.geo import GeoPoint
 from autopilot.mission import MissionItem
 from autopilot.trajectory.analytic import PaperSpiralCircle
 from autopilot.trajectory.factory import trajectory_from_table
-from heli_sitl.config import ConfigError
+from heli_common.config import ConfigError
+from heli_common.geo import GeoPoint
 
 WPL_HEADER = "QGC WPL 110"
 WPL_COLUMNS = 12

@@ -2,14 +2,14 @@
 the vehicle's telemetry into the columns of ``run.csv`` (the in-process simulator's CSV).
 
 A ``.tlog`` record is a big-endian uint64 unix time [us] followed by one MAVLink packet as
-received (heli_sitl.mavlink_link.TlogWriter; ``mavlogdump.py`` reads it).
+received (heli_common.mavlink.udp.TlogWriter; ``mavlogdump.py`` reads it).
 
 Columns (:data:`autopilot.metrics.CSV_HEADER`, the paper's NWU/FLU frames, SI units), one
 row per LOCAL_POSITION_NED of the vehicle:
 
 * ``t``: the vehicle's clock (LOCAL_POSITION_NED.time_boot_ms) [s] - the time the
   controller saw, not the reception time, so network jitter does not bend the curves.
-* ``x, y, z``: LOCAL_POSITION_NED converted NED -> NWU (heli_sitl.frames).
+* ``x, y, z``: LOCAL_POSITION_NED converted NED -> NWU (heli_common.frames).
 * ``phi, theta, psi``: the ATTITUDE of the same tick (FRD -> FLU); psi unwrapped, as run.csv.
 * ``x_cmd, y_cmd, z_cmd``: POSITION_TARGET_LOCAL_NED (10 Hz) interpolated linearly to the
   row's time (the reference is smooth; holding it would lag by up to 100 ms, ~0.2 m at
@@ -29,7 +29,7 @@ row per LOCAL_POSITION_NED of the vehicle:
   part of the corner angle there, which this rebuild does not show. NaN where there is
   no command (disarmed).
 * ``theta_m, theta_t, eps, eta``: SERVO_OUTPUT_RAW (10 Hz, resampled like the targets)
-  mapped back through the inverse of heli_sitl.servo_map.to_pwm_us with the airframe's
+  mapped back through the inverse of heli_common.servo_map.to_pwm_us with the airframe's
   pitch limits (or the LIM_* parameters seen in the log); the PWM quantum of 1 us is
   (hi - lo) / 1000 rad of pitch, and a saturated command reads as its limit. The control
   moves faster than 10 Hz, so these are a 10 Hz view of the pitches, not every tick's.
@@ -49,10 +49,10 @@ import numpy as np
 import numpy.typing as npt
 
 from autopilot.metrics import CSV_HEADER
-from heli_sitl import frames, servo_map
-from heli_sitl.mavlink_link import Message, TlogWriter, mavlink2
-from heli_sitl.params import Airframe
-from heli_sitl.state import FloatArray
+from heli_common import frames, servo_map
+from heli_common.airframe import Airframe
+from heli_common.mavlink.udp import Message, TlogWriter, mavlink2
+from heli_common.state import FloatArray
 
 __all__ = ["STALE_S", "TlogError", "TlogStats", "TlogWriter", "read_tlog", "tlog_columns", "write_csv"]
 

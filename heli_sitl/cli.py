@@ -11,16 +11,16 @@ import json
 import sys
 from pathlib import Path
 
-from heli_sitl.config import ConfigError
-from heli_sitl.servo_link import add_servo_args
+from heli_common.config import ConfigError
+from heli_common.servo_link import add_servo_args
 
 
 def _simulate(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from autopilot.closed_loop import SimOptions, simulate
     from autopilot.scenario import Scenario
     from ground.plots import plot_figures
+    from heli_sitl.closed_loop import SimOptions, simulate
 
     scenario = Scenario.load(args.scenario)
     out = Path(args.out)
@@ -61,11 +61,11 @@ def _run(args: argparse.Namespace) -> int:
     import signal
     import threading
 
-    from heli_sitl.mavlink_link import LOOPBACK, MavlinkUdp, PortBusyError
-    from heli_sitl.plant import Plant
-    from heli_sitl.scenario_state import load_vehicle
-    from heli_sitl.servo_link import load_servo_link, with_overrides
-    from heli_sitl.sim import PlantServer, SimConfig
+    from heli_common.mavlink.udp import LOOPBACK, MavlinkUdp, PortBusyError
+    from heli_common.scenario_file import load_vehicle
+    from heli_common.servo_link import load_servo_link, with_overrides
+    from heli_sitl.plant.model import Plant
+    from heli_sitl.plant.server import PlantServer, SimConfig
 
     logging.basicConfig(
         level=logging.INFO if args.verbose else logging.WARNING,
@@ -88,7 +88,7 @@ def _run(args: argparse.Namespace) -> int:
     servo = with_overrides(load_servo_link(args.links), args.servo_link, args.can_bus, args.actuator_ids)
     can = None
     if servo.link == "can":
-        from heli_sitl.links.can_servo import CanServoEndpoint
+        from heli_sitl.plant.can_endpoint import CanServoEndpoint
 
         can = CanServoEndpoint(servo.can_bus, limits=airframe.limits, actuator_ids=servo.actuator_ids,
                                timeout_s=servo.timeout_s)  # fmt: skip
@@ -105,7 +105,8 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _up(args: argparse.Namespace) -> int:
-    from heli_sitl.demo import DemoError, UpOptions, serve, terminate_on_sigterm
+    from heli_common.process import terminate_on_sigterm
+    from heli_sitl.demo import DemoError, UpOptions, serve
 
     terminate_on_sigterm()
 
@@ -124,7 +125,8 @@ def _up(args: argparse.Namespace) -> int:
 
 def _demo(args: argparse.Namespace) -> int:
     from ground.plots import plot_figures, read_csv_columns
-    from heli_sitl.demo import DemoError, DemoOptions, run_demo, terminate_on_sigterm
+    from heli_common.process import terminate_on_sigterm
+    from heli_sitl.demo import DemoError, DemoOptions, run_demo
 
     terminate_on_sigterm()
 

@@ -8,24 +8,17 @@ from __future__ import annotations
 
 import json
 import signal
-import socket
 import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from heli_common.mavlink.udp import free_udp_port
 from heli_sitl.children import Child, describe_exit, spawn, stop_all
-from heli_sitl.mavlink_link import LOOPBACK
 
 
 class DemoError(RuntimeError):
     """One-line reason the demo failed."""
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind((LOOPBACK, 0))
-        return int(s.getsockname()[1])
 
 
 @dataclass(frozen=True)
@@ -49,15 +42,6 @@ class DemoOptions:
 
 def _cmd(module: str) -> list[str]:
     return [sys.executable, "-m", module]
-
-
-def terminate_on_sigterm() -> None:
-    """Turn SIGTERM into KeyboardInterrupt, so ``finally`` blocks stop the children."""
-
-    def raise_interrupt(signum: int, frame: object) -> None:
-        raise KeyboardInterrupt
-
-    signal.signal(signal.SIGTERM, raise_interrupt)
 
 
 def run_demo(opts: DemoOptions) -> dict[str, object]:
@@ -186,14 +170,14 @@ def serve(opts: UpOptions, stop_after_s: float | None = None) -> None:
 
 
 def scenario_file(name_or_path: str) -> Path:
-    from heli_sitl.config import resolve
-    from heli_sitl.scenario_state import scenario_path
+    from heli_common.config import resolve
+    from heli_common.scenario_file import scenario_path
 
     return resolve(scenario_path(name_or_path)).resolve()
 
 
 def scenario_duration_s(name_or_path: str) -> float:
-    from heli_sitl.config import read_toml
+    from heli_common.config import read_toml
 
     _, table = read_toml(scenario_file(name_or_path))
     return float(table["run"]["duration_s"])

@@ -13,18 +13,18 @@ import numpy as np
 
 def main() -> None:
     t0 = time.perf_counter()
-    from autopilot.closed_loop import SimOptions, simulate
     from autopilot.scenario import Scenario
-    from heli_sitl import frames
-    from heli_sitl.contact import apply_ground_contact
-    from heli_sitl.plant import Plant
+    from heli_common import frames
+    from heli_sitl.closed_loop import SimOptions, simulate
+    from heli_sitl.plant.contact import apply_ground_contact
+    from heli_sitl.plant.model import Plant
 
     sc = Scenario.load("paper")
     simulate(sc, SimOptions(duration_s=0.1))
     x = sc.initial.state().to_array()
     f = frames.state_to_ned_fields(x)
     frames.state_from_ned_fields(*f[0:6].tolist(), *f[10:16].tolist())
-    from heli_sitl.kinematics import wrap_pi
+    from heli_common.kinematics import wrap_pi
 
     wrap_pi(4.0)
     apply_ground_contact(np.zeros(12), np.zeros(12))

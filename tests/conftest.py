@@ -1,7 +1,7 @@
 """Shared fixtures: the X-Cell airframe, the paper gains and a converged hover equilibrium.
 
 The closed-loop helpers fly the controller kernel and the plant through
-:func:`autopilot.closed_loop._run_ticks`, the same compiled loop ``simulate`` uses.
+:func:`heli_sitl.closed_loop._run_ticks`, the same compiled loop ``simulate`` uses.
 """
 
 from __future__ import annotations
@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 from hypothesis import settings
 
-from autopilot.closed_loop import _run_ticks
 from autopilot.tlc.controller import N_DIAG, N_REF, TLCConstants, TLController
 from autopilot.tlc.gains import Gains
-from heli_sitl.params import Airframe, PlantConstants
-from heli_sitl.plant import Plant
-from heli_sitl.state import N_PITCH, N_STATE, PSI, Z_U, FloatArray
+from heli_common.airframe import Airframe, PlantConstants
+from heli_common.state import N_PITCH, N_STATE, PSI, Z_U, FloatArray
+from heli_sitl.closed_loop import _run_ticks
+from heli_sitl.plant.model import Plant
 
 # The first call of a compiled function loads (or compiles) it: no per-example deadline.
 # HYPOTHESIS_PROFILE=thorough runs 20x more examples per property.

@@ -2,7 +2,7 @@
 as DroneCAN ArrayCommands, watched by an independent dronecan Node on the same bus.
 
 Measured here: the RMS 3-D position error over [45, 120] s at 100 Hz (pseudo
-feedforward) over CAN, the same without the bus (``autopilot.closed_loop.simulate``, no
+feedforward) over CAN, the same without the bus (``heli_sitl.closed_loop.simulate``, no
 float16 quantisation), and that every command the autopilot sent was decoded by dronecan's
 own Node/handler machinery with the values of the pitches to float16 precision.
 """
@@ -19,12 +19,11 @@ import dronecan
 import numpy as np
 import pytest
 
-from autopilot.closed_loop import simulate
-from autopilot.links.can_servo import DEFAULT_NODE_ID, CanFlight, fly_over_can
+from autopilot.links.can_servo import DEFAULT_NODE_ID
 from autopilot.metrics import FlightRecord
 from autopilot.scenario import Scenario
-from heli_sitl.links.can_bus import CanBusConfig, open_bus
-from heli_sitl.links.dronecan_codec import (
+from heli_common.can.bus import CanBusConfig, open_bus
+from heli_common.can.dronecan_codec import (
     ARRAY_COMMAND,
     COMMAND_TYPE_POSITION,
     DEFAULT_ACTUATOR_IDS,
@@ -32,6 +31,8 @@ from heli_sitl.links.dronecan_codec import (
     array_command_entries,
     float16_tolerance,
 )
+from heli_sitl.can_closed_loop import CanFlight, fly_over_can
+from heli_sitl.closed_loop import simulate
 
 RMS_WINDOW_S = (45.0, 120.0)
 RMS_BOUND_M = 0.05

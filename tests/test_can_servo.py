@@ -28,7 +28,8 @@ from dronecan import transport
 from netns import unshare_reason
 
 from autopilot.links.can_servo import CanServoSender
-from heli_sitl.links.can_bus import (
+from heli_common.airframe import PitchLimits
+from heli_common.can.bus import (
     CanBus,
     CanBusConfig,
     CanBusError,
@@ -36,8 +37,7 @@ from heli_sitl.links.can_bus import (
     open_bus,
     parse_bus_spec,
 )
-from heli_sitl.links.can_servo import CanServoEndpoint
-from heli_sitl.links.dronecan_codec import (
+from heli_common.can.dronecan_codec import (
     ACTUATOR_COMMAND,
     ARRAY_COMMAND,
     ARRAY_COMMAND_DTID,
@@ -52,7 +52,7 @@ from heli_sitl.links.dronecan_codec import (
     float16_tolerance,
     parse_can_id,
 )
-from heli_sitl.params import PitchLimits
+from heli_sitl.plant.can_endpoint import CanServoEndpoint
 
 # wide test limits [rad] (the X-Cell 60 file has tighter ones): theta_m, theta_t, eps, eta
 LIMITS = PitchLimits((-0.6, 0.6), (-0.8, 0.8), (-0.5, 0.5), (-0.5, 0.5))

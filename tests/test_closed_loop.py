@@ -1,4 +1,4 @@
-"""Closed loop (autopilot.closed_loop.simulate): the paper scenario against the spec's bounds,
+"""Closed loop (heli_sitl.closed_loop.simulate): the paper scenario against the spec's bounds,
 linearised stability of hover and climb, a climb in simulation and rate sensitivity."""
 
 from __future__ import annotations
@@ -12,7 +12,6 @@ from conftest import RATE_HZ, HoverEquilibrium, fly
 from numpy.testing import assert_allclose
 from scipy.optimize import fsolve
 
-from autopilot.closed_loop import SimOptions, simulate
 from autopilot.metrics import FlightRecord
 from autopilot.scenario import Scenario
 from autopilot.tlc.controller import (
@@ -27,10 +26,11 @@ from autopilot.tlc.controller import (
 )
 from autopilot.tlc.gains import Gains
 from autopilot.trajectory.analytic import StraightLine
-from heli_sitl.dynamics import derivative
-from heli_sitl.params import Airframe
-from heli_sitl.plant import Plant, accept_pitches, plant_step
-from heli_sitl.state import N_PITCH, N_STATE, OMEGA, PHI, THETA, VEL, Z_U, FloatArray
+from heli_common.airframe import Airframe
+from heli_common.state import N_PITCH, N_STATE, OMEGA, PHI, THETA, VEL, Z_U, FloatArray
+from heli_sitl.closed_loop import SimOptions, simulate
+from heli_sitl.plant.dynamics import derivative
+from heli_sitl.plant.model import Plant, accept_pitches, plant_step
 
 # --- the paper scenario --------------------------------------------------------------------------
 

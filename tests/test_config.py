@@ -1,4 +1,4 @@
-"""Config errors (heli_sitl.config): every bad file is refused with a ConfigError that names
+"""Config errors (heli_common.config): every bad file is refused with a ConfigError that names
 the file, the key and what was expected."""
 
 from __future__ import annotations
@@ -10,8 +10,8 @@ import pytest
 
 from autopilot.scenario import Scenario
 from autopilot.tlc.gains import Gains
-from heli_sitl.config import CONFIG_DIR, ConfigError
-from heli_sitl.params import Airframe
+from heli_common.airframe import Airframe
+from heli_common.config import CONFIG_DIR, ConfigError
 
 AIRFRAME = (CONFIG_DIR / "xcell60.toml").read_text()
 GAINS = (CONFIG_DIR / "gains_paper.toml").read_text()

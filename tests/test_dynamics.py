@@ -1,4 +1,4 @@
-"""The plant (heli_sitl.dynamics, integrate, plant): invariants of the rigid body, finite-
+"""The plant (heli_sitl.plant.dynamics, integrate, plant): invariants of the rigid body, finite-
 difference checks of the kinematics, gravity, forces, RK4 order and a hover trim."""
 
 from __future__ import annotations
@@ -14,11 +14,11 @@ from numpy.testing import assert_allclose
 from scipy.optimize import fsolve
 from scipy.spatial.transform import Rotation
 
-from heli_sitl.dynamics import derivative, forces_torques, rigid_body, rotor_loads
-from heli_sitl.integrate import rk4_step
-from heli_sitl.params import Airframe, PlantConstants
-from heli_sitl.plant import Plant
-from heli_sitl.state import EULER, N_STATE, OMEGA, POS, VEL, Z_U, FloatArray
+from heli_common.airframe import Airframe, PlantConstants
+from heli_common.state import EULER, N_STATE, OMEGA, POS, VEL, Z_U, FloatArray
+from heli_sitl.plant.dynamics import derivative, forces_torques, rigid_body, rotor_loads
+from heli_sitl.plant.integrate import rk4_step
+from heli_sitl.plant.model import Plant
 
 ZERO3 = np.zeros(3)
 
@@ -32,7 +32,7 @@ def inertia(c: PlantConstants) -> FloatArray:
 
 
 def rt(x: FloatArray) -> FloatArray:
-    """Body -> earth rotation from scipy (independent of heli_sitl.kinematics)."""
+    """Body -> earth rotation from scipy (independent of heli_common.kinematics)."""
     return Rotation.from_euler("ZYX", [x[8], x[7], x[6]]).as_matrix()
 
 

@@ -1,4 +1,4 @@
-"""Frame conversions NWU/FLU <-> NED/FRD (heli_sitl.frames), both ways, and the rotation
+"""Frame conversions NWU/FLU <-> NED/FRD (heli_common.frames), both ways, and the rotation
 identity they rest on: T Rt(phi, theta, psi) T = Rt(phi, -theta, -psi), T = diag(1, -1, -1)."""
 
 from __future__ import annotations
@@ -12,9 +12,9 @@ from hypothesis import strategies as st
 from numpy.testing import assert_allclose
 from scipy.spatial.transform import Rotation
 
-from heli_sitl import frames
-from heli_sitl.kinematics import rot_body_to_earth, wrap_pi
-from heli_sitl.state import EULER, N_STATE, OMEGA, POS, VEL
+from heli_common import frames
+from heli_common.kinematics import rot_body_to_earth, wrap_pi
+from heli_common.state import EULER, N_STATE, OMEGA, POS, VEL
 
 T = np.diag([1.0, -1.0, -1.0])
 PI = math.pi
@@ -237,7 +237,7 @@ def test_a_zero_or_nan_quaternion_is_a_clear_error(q: tuple[float, float, float,
     st.lists(st.floats(-5, 5), min_size=3, max_size=3),
 )
 def test_compiled_whole_state_conversion_matches_and_inverts(pv, euler, omega) -> None:  # type: ignore[no-untyped-def]
-    from heli_sitl.kinematics import rot_body_to_earth
+    from heli_common.kinematics import rot_body_to_earth
 
     x = np.array([*pv[:3], *pv[3:], *euler, *omega])
     f = frames.state_to_ned_fields(x)

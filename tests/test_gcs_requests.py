@@ -18,8 +18,8 @@ from test_ground_client import client, gwp, running_vehicle
 
 from autopilot import mission as ms
 from ground.client import GroundClient
+from heli_common.mavlink.udp import Message, mavlink2
 from heli_sitl.children import spawn
-from heli_sitl.mavlink_link import Message, mavlink2
 
 m2 = mavlink2
 UNKNOWN_IDS = (299, 300, 397, 435, 436, 437, 12_900, 65_535, 16_777_215)  # not built / not defined

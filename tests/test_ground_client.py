@@ -26,7 +26,6 @@ from vehicle import free_ports, spawn_up
 
 from autopilot import mission as ms
 from autopilot import trajectory_codec as codec
-from autopilot.geo import GeoPoint, nwu_to_geo
 from autopilot.mission import MissionItem
 from autopilot.trajectory.analytic import StraightLine
 from ground import cli
@@ -38,10 +37,10 @@ from ground.client import (
     px4_mode,
 )
 from ground.files import write_waypoints
+from heli_common.frames import flip
+from heli_common.geo import GeoPoint, nwu_to_geo
+from heli_common.mavlink.udp import Message, free_udp_port, mavlink2
 from heli_sitl.children import Child
-from heli_sitl.demo import free_udp_port
-from heli_sitl.frames import flip
-from heli_sitl.mavlink_link import Message, mavlink2
 
 m2 = mavlink2
 HOME = GeoPoint(47.397742, 8.545594, 488.0)  # heli-autopilot's default --home

@@ -32,13 +32,13 @@ import pytest
 from vehicle import free_ports, spawn_up
 
 from autopilot import mission as ms
-from autopilot.geo import GeoPoint, nwu_to_geo
 from autopilot.mission import MissionItem
 from ground.client import GroundClient
 from ground.files import read_waypoints, write_waypoints
+from heli_common.frames import flip
+from heli_common.geo import GeoPoint, nwu_to_geo
+from heli_common.mavlink.udp import Message
 from heli_sitl.children import die_with_parent
-from heli_sitl.frames import flip
-from heli_sitl.mavlink_link import Message
 
 HOME = GeoPoint(47.397742, 8.545594, 488.0)
 START_S = 60.0

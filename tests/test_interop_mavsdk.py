@@ -26,8 +26,8 @@ import pytest
 from vehicle import free_ports, spawn_up
 
 from autopilot import mission as ms
-from autopilot.geo import GeoPoint, nwu_to_geo
-from heli_sitl.frames import flip
+from heli_common.frames import flip
+from heli_common.geo import GeoPoint, nwu_to_geo
 
 try:
     from mavsdk.asyncio import ComponentType, Configuration, Mavsdk

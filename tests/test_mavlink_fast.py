@@ -1,4 +1,4 @@
-"""heli_sitl.mavlink_fast against pymavlink 2.4.50: same bytes, same values, robust decoding."""
+"""heli_common.mavlink.fast against pymavlink 2.4.50: same bytes, same values, robust decoding."""
 
 from __future__ import annotations
 
@@ -16,9 +16,11 @@ from hypothesis import strategies as st
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import common as m2
 
-from heli_sitl import frames, mavlink_fast, sim_protocol
-from heli_sitl.kinematics import rot_body_to_earth
-from heli_sitl.mavlink_fast import (
+from heli_common import frames
+from heli_common.kinematics import rot_body_to_earth
+from heli_common.mavlink import fast as mavlink_fast
+from heli_common.mavlink import sim_protocol
+from heli_common.mavlink.fast import (
     Attitude,
     Decoded,
     HilActuatorControls,
@@ -27,7 +29,7 @@ from heli_sitl.mavlink_fast import (
     SimCodec,
     hil_alt_vel,
 )
-from heli_sitl.state import EULER, N_STATE, VEL
+from heli_common.state import EULER, N_STATE, VEL
 
 U8 = st.integers(0, 255)
 U64 = st.integers(0, 2**64 - 1)

@@ -23,16 +23,16 @@ from vehicle import free_ports, spawn_up
 
 from autopilot import mission as ms
 from autopilot import telemetry
-from autopilot.geo import GeoPoint, nwu_to_geo
 from autopilot.metrics import CSV_HEADER
 from autopilot.mission import MissionItem
 from ground import cli
 from ground.files import write_waypoints
 from ground.log import TlogError, TlogStats, read_tlog, tlog_columns
-from heli_sitl import servo_map
+from heli_common import servo_map
+from heli_common.airframe import Airframe
+from heli_common.geo import GeoPoint, nwu_to_geo
+from heli_common.mavlink.udp import TlogWriter
 from heli_sitl.children import Child, die_with_parent, spawn
-from heli_sitl.mavlink_link import TlogWriter
-from heli_sitl.params import Airframe
 
 HOME = GeoPoint(47.397742, 8.545594, 488.0)
 MAVLOGDUMP = Path(sys.executable).with_name("mavlogdump.py")

@@ -15,8 +15,8 @@ from hypothesis import strategies as st
 from pymavlink.dialects.v20 import common as mavlink
 
 from autopilot import mission as ms
-from autopilot.geo import GeoPoint, geo_to_nwu_m, nwu_to_geo
 from autopilot.mission import ItemLimits, MissionItem, MissionServer, check_item
+from heli_common.geo import GeoPoint, geo_to_nwu_m, nwu_to_geo
 
 HOME = GeoPoint(47.397742, 8.545594, 488.0)
 GCS = (255, 190)

@@ -13,7 +13,6 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import common as mavlink
 
-from autopilot.geo import GeoPoint
 from autopilot.params_table import (
     INT32,
     REAL32,
@@ -23,7 +22,8 @@ from autopilot.params_table import (
     ParamTable,
 )
 from autopilot.tlc.gains import Gains
-from heli_sitl.params import Airframe
+from heli_common.airframe import Airframe
+from heli_common.geo import GeoPoint
 
 GAINS = Gains.load()
 AIRFRAME = Airframe.load()

@@ -15,13 +15,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from autopilot.closed_loop import simulate
 from autopilot.scenario import Scenario
 from ground.plots import read_csv_columns
+from heli_common.mavlink.sim_protocol import command_message, state_messages
+from heli_common.mavlink.udp import LOOPBACK, MavlinkUdp, free_udp_port, mavlink2
 from heli_sitl.children import Child, spawn
-from heli_sitl.demo import DemoError, DemoOptions, UpOptions, free_udp_port, run_demo, up_commands
-from heli_sitl.mavlink_link import LOOPBACK, MavlinkUdp, mavlink2
-from heli_sitl.sim_protocol import command_message, state_messages
+from heli_sitl.closed_loop import simulate
+from heli_sitl.demo import DemoError, DemoOptions, UpOptions, run_demo, up_commands
 
 pytestmark = pytest.mark.slow
 

@@ -1,4 +1,4 @@
-"""Rotor maps (heli_sitl.rotor, Zhu & Huo eqs 16-17, 34) and the spec's hover sanity numbers."""
+"""Rotor maps (heli_common.rotor, Zhu & Huo eqs 16-17, 34) and the spec's hover sanity numbers."""
 
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ from hypothesis import given
 from hypothesis import strategies as st
 from numpy.testing import assert_allclose
 
-from heli_sitl.dynamics import rotor_loads
-from heli_sitl.params import Airframe, PlantConstants
-from heli_sitl.rotor import pitch_from_thrust_coeff, thrust_coeff, torque_coeff
+from heli_common.airframe import Airframe, PlantConstants
+from heli_common.rotor import pitch_from_thrust_coeff, thrust_coeff, torque_coeff
+from heli_sitl.plant.dynamics import rotor_loads
 
 _C = Airframe.load().constants()
 ROTORS = {"main": (_C.a_m, _C.s_m), "tail": (_C.a_t, _C.s_t)}

@@ -17,10 +17,10 @@ from autopilot.runner import Runner, RunnerConfig
 from autopilot.scenario import Scenario
 from autopilot.tlc.controller import S_I1, S_I4, TLController
 from autopilot.trajectory.analytic import StraightLine
-from heli_sitl import servo_map
-from heli_sitl.mavlink_link import LOOPBACK, MavlinkUdp, PortBusyError, mavlink2
-from heli_sitl.params import Airframe
-from heli_sitl.sim_protocol import StateAssembler, command_message, decode_command, state_messages
+from heli_common import servo_map
+from heli_common.airframe import Airframe
+from heli_common.mavlink.sim_protocol import StateAssembler, command_message, decode_command, state_messages
+from heli_common.mavlink.udp import LOOPBACK, MavlinkUdp, PortBusyError, mavlink2
 
 LIMITS = servo_map.limits_array(Airframe.load().limits.as_tuple())
 angles = st.floats(-1.2, 1.2)
@@ -168,7 +168,7 @@ def test_landed_with_ground_command_does_not_wind_up(paper: Scenario) -> None:
 
 def test_disarmed_on_the_ground_does_not_yaw() -> None:
     """Zero pitch still leaves the main rotor's profile torque; skid friction holds the yaw."""
-    from heli_sitl.plant import Plant
+    from heli_sitl.plant.model import Plant
 
     plant = Plant(Airframe.load(), np.zeros(12))
     plant.set_pitches(np.zeros(4))

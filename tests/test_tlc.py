@@ -30,12 +30,12 @@ from autopilot.tlc.differentiator import diff_reset, diff_step, discretize
 from autopilot.tlc.gains import Gains
 from autopilot.tlc.inversion import force_to_thrust_attitude, limit_tilt, yaw_rate_command
 from autopilot.tlc.loops import a3_matrix, a4_matrix
-from heli_sitl.dynamics import rotor_loads
-from heli_sitl.kinematics import euler_rates
-from heli_sitl.params import Airframe, PlantConstants
-from heli_sitl.plant import Plant
-from heli_sitl.rotor import pitch_from_thrust_coeff
-from heli_sitl.state import N_STATE, Z_U, FloatArray
+from heli_common.airframe import Airframe, PlantConstants
+from heli_common.kinematics import euler_rates
+from heli_common.rotor import pitch_from_thrust_coeff
+from heli_common.state import N_STATE, Z_U, FloatArray
+from heli_sitl.plant.dynamics import rotor_loads
+from heli_sitl.plant.model import Plant
 
 _AF = Airframe.load()
 _C = _AF.constants()

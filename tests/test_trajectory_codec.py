@@ -15,11 +15,11 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from autopilot import mission as ms
 from autopilot import trajectory_codec as codec
-from autopilot.geo import GeoPoint
 from autopilot.mission import MissionItem, MissionServer
 from autopilot.trajectory.analytic import PaperSpiralCircle
 from autopilot.trajectory.sampled import SampledTrajectory
 from autopilot.trajectory.waypoints import WaypointTrajectory
+from heli_common.geo import GeoPoint
 
 HOME = GeoPoint(47.397742, 8.545594, 488.0)
 
@@ -251,8 +251,8 @@ def test_decoded_spiral_matches_analytic_away_from_the_corner() -> None:
 @pytest.mark.slow
 def test_uploaded_spiral_flies_like_the_in_process_reproduction() -> None:
     """The whole point: the paper scenario flown from the decoded upload vs the analytic one."""
-    from autopilot.closed_loop import simulate
     from autopilot.scenario import Scenario
+    from heli_sitl.closed_loop import simulate
 
     sc = Scenario.load("paper")
     decoded = codec.decode(codec.encode_trajectory(sc.trajectory, 0.5, breaks_s=[40.0]))

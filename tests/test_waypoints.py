@@ -10,14 +10,6 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from autopilot import mission as ms
-from autopilot.geo import (
-    GeoPoint,
-    geo_to_ned_m,
-    geo_to_nwu_m,
-    horizontal_distance_m,
-    ned_to_geo,
-    nwu_to_geo,
-)
 from autopilot.mission import MissionItem
 from autopilot.trajectory.base import Trajectory
 from autopilot.trajectory.sampled import SampledTrajectory
@@ -27,7 +19,15 @@ from autopilot.trajectory.waypoints import (
     WaypointTrajectory,
     build_waypoint_trajectory,
 )
-from heli_sitl.frames import flip
+from heli_common.frames import flip
+from heli_common.geo import (
+    GeoPoint,
+    geo_to_ned_m,
+    geo_to_nwu_m,
+    horizontal_distance_m,
+    ned_to_geo,
+    nwu_to_geo,
+)
 
 HOME = GeoPoint(47.397742, 8.545594, 488.0)
 LIM = FlightLimits()

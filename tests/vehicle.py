@@ -5,8 +5,8 @@ from __future__ import annotations
 import sys
 from typing import NamedTuple
 
+from heli_common.mavlink.udp import free_udp_port
 from heli_sitl.children import Child, spawn
-from heli_sitl.demo import free_udp_port
 
 
 class UpPorts(NamedTuple):

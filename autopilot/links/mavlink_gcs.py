@@ -22,16 +22,16 @@ import numpy as np
 
 from autopilot import telemetry
 from autopilot.flight_log import heartbeat
-from autopilot.geo import GeoPoint, nwu_to_geo
 from autopilot.mission import MissionItem, MissionServer
 from autopilot.modes import Flight, Mode, landed
 from autopilot.params_table import ParamTable
 from autopilot.trajectory.waypoints import FlightLimits, WaypointTrajectory
 from autopilot.trajectory_codec import check_mission, mission_to_trajectory
-from heli_sitl.kinematics import rot_body_to_earth
-from heli_sitl.mavlink_link import LOOPBACK, Address, MavlinkUdp, Message, mavlink2
-from heli_sitl.ratelog import RateLimitedLog
-from heli_sitl.state import EULER, POS, VEL, FloatArray
+from heli_common.geo import GeoPoint, nwu_to_geo
+from heli_common.kinematics import rot_body_to_earth
+from heli_common.mavlink.udp import LOOPBACK, Address, MavlinkUdp, Message, mavlink2
+from heli_common.ratelog import RateLimitedLog
+from heli_common.state import EULER, POS, VEL, FloatArray
 
 log = logging.getLogger("autopilot.gcs")
 m2 = mavlink2

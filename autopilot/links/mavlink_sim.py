@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-from heli_sitl import servo_map
-from heli_sitl.closing import Closing
-from heli_sitl.mavlink_fast import SimCodec
-from heli_sitl.mavlink_link import Address, MavlinkUdp
-from heli_sitl.sim_protocol import MAV_MODE_FLAG_SAFETY_ARMED, StateAssembler, StateSample, receive
-from heli_sitl.state import FloatArray
+from heli_common import servo_map
+from heli_common.closing import Closing
+from heli_common.mavlink.fast import SimCodec
+from heli_common.mavlink.sim_protocol import MAV_MODE_FLAG_SAFETY_ARMED, StateAssembler, StateSample, receive
+from heli_common.mavlink.udp import Address, MavlinkUdp
+from heli_common.state import FloatArray
 
 
 class SimLink(Closing):

@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-from heli_sitl import rotor
-from heli_sitl._jit import njit
-from heli_sitl.params import PlantConstants
-from heli_sitl.state import FloatArray
+from heli_common import rotor
+from heli_common.airframe import PlantConstants
+from heli_common.jit import njit
+from heli_common.state import FloatArray
 
 
 @njit

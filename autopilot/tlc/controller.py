@@ -19,11 +19,11 @@ from autopilot.tlc.differentiator import DiffCoeffs, diff_reset, diff_step, disc
 from autopilot.tlc.gains import Gains
 from autopilot.tlc.inversion import force_to_thrust_attitude, limit_tilt, yaw_rate_command
 from autopilot.tlc.loops import a3_matrix, a4_matrix
-from heli_sitl import rotor
-from heli_sitl._jit import njit
-from heli_sitl.kinematics import cross, euler_rate_matrix, rot_body_to_earth, wrap_pi
-from heli_sitl.params import Airframe, PitchLimits, PlantConstants
-from heli_sitl.state import EULER, N_PITCH, N_STATE, OMEGA, POS, VEL, FloatArray
+from heli_common import rotor
+from heli_common.airframe import Airframe, PitchLimits, PlantConstants
+from heli_common.jit import njit
+from heli_common.kinematics import cross, euler_rate_matrix, rot_body_to_earth, wrap_pi
+from heli_common.state import EULER, N_PITCH, N_STATE, OMEGA, POS, VEL, FloatArray
 
 # reference vector (earth NWU): commanded position and, where known, its derivatives
 REF_POS, REF_VEL, REF_ACC = 0, 3, 6

@@ -14,8 +14,8 @@ from typing import NamedTuple
 import numpy as np
 from scipy.linalg import expm
 
-from heli_sitl._jit import njit
-from heli_sitl.state import FloatArray
+from heli_common.jit import njit
+from heli_common.state import FloatArray
 
 
 class DiffCoeffs(NamedTuple):

@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from heli_sitl.config import load, spec
+from heli_common.config import load, spec
 
 
 @dataclass(frozen=True)

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import math
 
-from heli_sitl._jit import njit
-from heli_sitl.state import FloatArray
+from heli_common.jit import njit
+from heli_common.state import FloatArray
 
 
 @njit

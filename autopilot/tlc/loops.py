@@ -10,8 +10,8 @@ import math
 
 import numpy as np
 
-from heli_sitl._jit import njit
-from heli_sitl.state import FloatArray
+from heli_common.jit import njit
+from heli_common.state import FloatArray
 
 
 @njit

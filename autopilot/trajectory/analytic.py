@@ -9,8 +9,8 @@ import numpy as np
 import numpy.typing as npt
 
 from autopilot.trajectory.base import Trajectory
-from heli_sitl.config import spec
-from heli_sitl.state import FloatArray
+from heli_common.config import spec
+from heli_common.state import FloatArray
 
 
 @dataclass(frozen=True)

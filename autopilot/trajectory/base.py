@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from heli_sitl.state import FloatArray
+from heli_common.state import FloatArray
 
 
 @dataclass(frozen=True)

@@ -7,7 +7,7 @@ from typing import Any
 
 from autopilot.trajectory.analytic import PaperSpiralCircle, StraightLine
 from autopilot.trajectory.base import Trajectory
-from heli_sitl.config import ConfigError, build
+from heli_common.config import ConfigError, build
 
 KINDS: dict[str, type[Trajectory]] = {
     "paper_spiral_circle": PaperSpiralCircle,

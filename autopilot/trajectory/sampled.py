@@ -31,7 +31,7 @@ import numpy.typing as npt
 from scipy.interpolate import CubicSpline
 
 from autopilot.trajectory.base import Trajectory
-from heli_sitl.state import FloatArray
+from heli_common.state import FloatArray
 
 N_AXES = 3
 

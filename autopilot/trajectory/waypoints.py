@@ -36,10 +36,10 @@ import numpy as np
 import numpy.typing as npt
 
 from autopilot import mission as ms
-from autopilot.geo import GeoPoint
 from autopilot.trajectory.base import Trajectory
-from heli_sitl.frames import flip
-from heli_sitl.state import FloatArray
+from heli_common.frames import flip
+from heli_common.geo import GeoPoint
+from heli_common.state import FloatArray
 
 # smootherstep ramp: peak acceleration = RAMP_ACC_FACTOR * V / T_ramp
 RAMP_ACC_FACTOR = 1.875

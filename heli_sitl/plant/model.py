@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from heli_sitl._jit import njit
-from heli_sitl.contact import apply_ground_contact
-from heli_sitl.integrate import rk4_step
-from heli_sitl.params import Airframe, PlantConstants
-from heli_sitl.state import N_PITCH, N_STATE, FloatArray
+from heli_common.airframe import Airframe, PlantConstants
+from heli_common.jit import njit
+from heli_common.state import N_PITCH, N_STATE, FloatArray
+from heli_sitl.plant.contact import apply_ground_contact
+from heli_sitl.plant.integrate import rk4_step
 
 
 @njit

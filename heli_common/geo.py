@@ -11,7 +11,7 @@ use the same kind of local linearisation for their local position.
 
 The local origin is home at ground level; NED is what MAVLink carries (LOCAL_POSITION_NED,
 MAV_FRAME_LOCAL_NED), NWU what the controller uses. The NED <-> NWU change goes through
-:func:`heli_sitl.frames.flip`, the only place frames change.
+:func:`heli_common.frames.flip`, the only place frames change.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from heli_sitl.frames import Vec3, flip
+from heli_common.frames import Vec3, flip
 
 # WGS-84 ellipsoid
 WGS84_A_M = 6378137.0

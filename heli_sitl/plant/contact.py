@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import math
 
-from heli_sitl._jit import njit
-from heli_sitl.kinematics import rot_body_to_earth
-from heli_sitl.state import P_X, PHI, PSI, Q_Y, R_Z, THETA, U_F, V_L, W_U, X_N, Y_W, Z_U, FloatArray
+from heli_common.jit import njit
+from heli_common.kinematics import rot_body_to_earth
+from heli_common.state import P_X, PHI, PSI, Q_Y, R_Z, THETA, U_F, V_L, W_U, X_N, Y_W, Z_U, FloatArray
 
 GROUND_Z_M = 0.0
 

@@ -20,7 +20,7 @@ python-can >= 4.4 it calls ``bus.flush_tx_buffer()`` after every frame, which ra
 NotImplementedError on the ``virtual`` and ``udp_multicast`` buses (its writer thread
 dies on the first frame), and it passes the receive timeout in milliseconds to
 ``bus.recv``, which takes seconds. The links here drive python-can themselves
-(:mod:`heli_sitl.links.can_bus`) and use only dronecan's DSDL and framing;
+(:mod:`heli_common.can.bus`) and use only dronecan's DSDL and framing;
 :class:`DronecanDriver` is a corrected driver for running dronecan's own ``Node`` on
 such a bus (the interoperability test decodes the autopilot's commands that way).
 
@@ -48,7 +48,7 @@ from dronecan import transport
 from dronecan.driver.common import AbstractDriver, CANFrame
 from dronecan.dsdl import common as dsdl_common
 
-from heli_sitl.links.can_bus import CanBus
+from heli_common.can.bus import CanBus
 
 ARRAY_COMMAND: Any = dronecan.uavcan.equipment.actuator.ArrayCommand
 ACTUATOR_COMMAND: Any = dronecan.uavcan.equipment.actuator.Command
@@ -62,7 +62,7 @@ MAX_COMMANDS_PER_ARRAY = 15  # Command[<=15]
 HEALTH_OK, HEALTH_WARNING, HEALTH_ERROR, HEALTH_CRITICAL = 0, 1, 2, 3
 MODE_OPERATIONAL, MODE_INITIALIZATION = 0, 1
 
-#: theta_m, theta_t, eps, eta (heli_sitl.state.PITCH_NAMES order)
+#: theta_m, theta_t, eps, eta (heli_common.state.PITCH_NAMES order)
 DEFAULT_ACTUATOR_IDS: tuple[int, int, int, int] = (1, 2, 3, 4)
 #: 0 is the highest priority, 31 the lowest. Servo commands are time-critical; NodeStatus
 #: is housekeeping and must not delay them.

@@ -5,7 +5,7 @@ HIL_STATE_QUATERNION (``time_usec``: simulation time [us], the lockstep key), AT
 (float Euler angles and body rates, NED/FRD) and LOCAL_POSITION_NED (float position and
 earth-frame velocity). The autopilot answers with one HIL_ACTUATOR_CONTROLS whose
 ``time_usec`` echoes the state it answers; controls[0:4] are the pitches normalised by the
-limits (:mod:`heli_sitl.servo_map`), and ``mode`` carries MAV_MODE_FLAG_SAFETY_ARMED.
+limits (:mod:`heli_common.servo_map`), and ``mode`` carries MAV_MODE_FLAG_SAFETY_ARMED.
 """
 
 from __future__ import annotations
@@ -15,10 +15,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from heli_sitl import frames, servo_map
-from heli_sitl.mavlink_fast import Decoded, SimCodec, hil_alt_vel
-from heli_sitl.mavlink_link import MavlinkUdp, Message, mavlink2
-from heli_sitl.state import N_PITCH, FloatArray
+from heli_common import frames, servo_map
+from heli_common.mavlink.fast import Decoded, SimCodec, hil_alt_vel
+from heli_common.mavlink.udp import MavlinkUdp, Message, mavlink2
+from heli_common.state import N_PITCH, FloatArray
 
 
 class StateFields(NamedTuple):

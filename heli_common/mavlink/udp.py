@@ -22,17 +22,23 @@ from typing import Any, BinaryIO, TypeAlias
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import common as mavlink2
 
-from heli_sitl.closing import Closing
+from heli_common.closing import Closing
 
 __all__ = [
     "LOOPBACK", "Address", "MavlinkUdp", "Message", "PortBusyError", "TlogWriter",
-    "addressed_to", "mavlink2",
+    "addressed_to", "free_udp_port", "mavlink2",
 ]  # fmt: skip
 
 Address = tuple[str, int]
 MAVLink = mavlink2.MAVLink
 Message: TypeAlias = Any  # a pymavlink MAVLink_message (pymavlink ships no type information)
 LOOPBACK = "127.0.0.1"
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind((LOOPBACK, 0))
+        return int(s.getsockname()[1])
 
 
 class PortBusyError(OSError):

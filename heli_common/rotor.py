@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 
-from heli_sitl._jit import njit
+from heli_common.jit import njit
 
 
 @njit

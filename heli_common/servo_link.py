@@ -11,7 +11,7 @@ import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
-from heli_sitl.config import ConfigError, build, read_toml, spec
+from heli_common.config import ConfigError, build, read_toml, spec
 
 
 @dataclass(frozen=True)

@@ -11,9 +11,9 @@ from pathlib import Path
 
 import numpy as np
 
-from heli_sitl.config import ConfigError, build, read_toml, spec
-from heli_sitl.params import Airframe
-from heli_sitl.state import FloatArray, State
+from heli_common.airframe import Airframe
+from heli_common.config import ConfigError, build, read_toml, spec
+from heli_common.state import FloatArray, State
 
 
 @dataclass(frozen=True)

@@ -14,9 +14,9 @@ from typing import TypeAlias
 
 import numpy as np
 
-from heli_sitl._jit import njit
-from heli_sitl.kinematics import rot_body_to_earth, wrap_pi
-from heli_sitl.state import EULER, N_STATE, OMEGA, POS, VEL, FloatArray
+from heli_common.jit import njit
+from heli_common.kinematics import rot_body_to_earth, wrap_pi
+from heli_common.state import EULER, N_STATE, OMEGA, POS, VEL, FloatArray
 
 Vec3 = tuple[float, float, float]
 VecIn: TypeAlias = Sequence[float] | FloatArray  # anything with 3 indexable numbers

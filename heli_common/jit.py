@@ -22,7 +22,7 @@ import numba
 F = TypeVar("F", bound=Callable[..., Any])
 
 _ROOT = Path(__file__).resolve().parent.parent
-_JIT_PACKAGES = ("heli_sitl", "autopilot")
+_JIT_PACKAGES = ("heli_common", "heli_sitl", "autopilot")
 
 
 def _source_hash() -> str:
@@ -31,7 +31,7 @@ def _source_hash() -> str:
     for pkg in _JIT_PACKAGES:
         for f in sorted((_ROOT / pkg).rglob("*.py")):
             text = f.read_bytes()
-            if b"@njit" in text or f.name == "params.py":  # params: the constants' layout
+            if b"@njit" in text or f.name == "airframe.py":  # the constants' layout
                 h.update(str(f.relative_to(_ROOT)).encode())
                 h.update(text)
     return h.hexdigest()[:16]

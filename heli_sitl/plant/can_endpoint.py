@@ -1,7 +1,7 @@
 """The plant's CAN servo input: DroneCAN ArrayCommand in, held pitches out.
 
 The endpoint stands for the four pitch servos on the bus. ``poll(now_s)`` drains the bus,
-reassembles and checks every transfer (:mod:`heli_sitl.links.dronecan_codec`) and
+reassembles and checks every transfer (:mod:`heli_common.can.dronecan_codec`) and
 returns the pitches held now, in the order theta_m, theta_t, eps, eta [rad] (None until
 the first valid command). The caller hands them to ``Plant.set_pitches``.
 
@@ -20,7 +20,7 @@ logged, at most once a second per kind; the previous pitches stay held):
   frame, so every applied command has passed the transfer CRC (single-frame DroneCAN
   transfers carry none; a corrupted end flag can make one out of a first frame, and that
   can never hold four commands).
-* A non-finite value refuses the whole transfer (as ``heli_sitl.plant.accept_pitches``).
+* A non-finite value refuses the whole transfer (as ``heli_sitl.plant.model.accept_pitches``).
 * Limits: a value beyond a servo limit by more than one float16 step at that limit
   (~6e-4 rad at 0.6 rad) refuses the whole transfer (``out_of_limits``): the sender's
   limits differ from the plant's, or it is faulty, and a silently clipped command would
@@ -50,9 +50,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from heli_sitl.closing import Closing
-from heli_sitl.links.can_bus import CanBus, CanBusConfig, CanBusError, open_bus
-from heli_sitl.links.dronecan_codec import (
+from heli_common.airframe import PitchLimits
+from heli_common.can.bus import CanBus, CanBusConfig, CanBusError, open_bus
+from heli_common.can.dronecan_codec import (
     ARRAY_COMMAND_DTID,
     COMMAND_TYPE_POSITION,
     DEFAULT_ACTUATOR_IDS,
@@ -64,10 +64,10 @@ from heli_sitl.links.dronecan_codec import (
     check_actuator_ids,
     check_node_id,
 )
-from heli_sitl.params import PitchLimits
-from heli_sitl.plant import accept_pitches
-from heli_sitl.ratelog import RateLimitedLog
-from heli_sitl.state import N_PITCH, PITCH_NAMES, FloatArray
+from heli_common.closing import Closing
+from heli_common.ratelog import RateLimitedLog
+from heli_common.state import N_PITCH, PITCH_NAMES, FloatArray
+from heli_sitl.plant.model import accept_pitches
 
 log = logging.getLogger(__name__)
 

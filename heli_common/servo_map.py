@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from heli_sitl.state import FloatArray
+from heli_common.state import FloatArray
 
 PWM_CENTRE_US = 1500.0
 PWM_HALF_RANGE_US = 500.0

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import NamedTuple
 
-from heli_sitl.config import load, spec
+from heli_common.config import load, spec
 
 
 @dataclass(frozen=True)

@@ -3,8 +3,8 @@
 This loop is the only owner of time here: tick k is at t = k / rate, the controller sees
 the state at t, its pitches are held (zero-order hold) while the plant integrates to t+dt.
 The loop itself is compiled and calls the very kernels the processes use
-(:func:`~autopilot.tlc.controller.tlc_kernel`, :func:`~heli_sitl.plant.plant_step`,
-:func:`~heli_sitl.plant.accept_pitches`); a trajectory is a pure function of time, so
+(:func:`~autopilot.tlc.controller.tlc_kernel`, :func:`~heli_sitl.plant.model.plant_step`,
+:func:`~heli_sitl.plant.model.accept_pitches`); a trajectory is a pure function of time, so
 the references for every tick are sampled up front.
 """
 
@@ -24,10 +24,10 @@ from autopilot.tlc.controller import (
     TLController,
     tlc_kernel,
 )
-from heli_sitl._jit import njit
-from heli_sitl.params import PlantConstants
-from heli_sitl.plant import Plant, accept_pitches, plant_step
-from heli_sitl.state import N_PITCH, FloatArray
+from heli_common.airframe import PlantConstants
+from heli_common.jit import njit
+from heli_common.state import N_PITCH, FloatArray
+from heli_sitl.plant.model import Plant, accept_pitches, plant_step
 
 Progress = Callable[[int, int], None]
 CHUNK_TICKS = 500  # progress granularity; each chunk is one compiled call

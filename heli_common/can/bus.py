@@ -32,7 +32,7 @@ from typing import Literal, cast, get_args
 
 import can
 
-from heli_sitl.closing import Closing
+from heli_common.closing import Closing
 
 Interface = Literal["virtual", "udp_multicast", "socketcan"]
 INTERFACES: tuple[str, ...] = get_args(Interface)

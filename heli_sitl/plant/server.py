@@ -16,20 +16,20 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
-from heli_sitl.links.can_servo import CanServoEndpoint
-from heli_sitl.mavlink_fast import HilActuatorControls, SimCodec
-from heli_sitl.mavlink_link import MavlinkUdp
-from heli_sitl.plant import Plant
-from heli_sitl.servo_map import limits_array
-from heli_sitl.sim_protocol import (
+from heli_common.mavlink.fast import HilActuatorControls, SimCodec
+from heli_common.mavlink.sim_protocol import (
     MAV_MODE_FLAG_SAFETY_ARMED,
     decode_command,
     encode_state,
     period_us,
     receive,
 )
+from heli_common.mavlink.udp import MavlinkUdp
+from heli_common.servo_map import limits_array
+from heli_sitl.plant.can_endpoint import CanServoEndpoint
+from heli_sitl.plant.model import Plant
 
-log = logging.getLogger("heli_sitl.sim")
+log = logging.getLogger("heli_sitl.plant.server")
 LOCKSTEP_SPIN_S = 0.002  # poll this long before sleeping (see MavlinkUdp.wait)
 
 

@@ -1,7 +1,7 @@
 """The un-simplified helicopter model (Zhu & Huo eqs 7-13, 16-17) as a pure function.
 
 ``derivative(t, x, u, c)`` returns dx/dt for the named state layout of
-:mod:`heli_sitl.state`, pitches ``u`` [rad] and :class:`~heli_sitl.params.PlantConstants`.
+:mod:`heli_common.state`, pitches ``u`` [rad] and :class:`~heli_common.airframe.PlantConstants`.
 Frames: earth NWU, body FLU, main thrust along +z_body. Torques follow the paper's
 printed eq. 13 (see shared/docs/tlc-model.md section 3 for the physically derived
 alternative and why the printed one is kept).
@@ -13,11 +13,11 @@ import math
 
 import numpy as np
 
-from heli_sitl import rotor
-from heli_sitl._jit import njit
-from heli_sitl.kinematics import euler_rates, rot_body_to_earth
-from heli_sitl.params import PlantConstants
-from heli_sitl.state import (
+from heli_common import rotor
+from heli_common.airframe import PlantConstants
+from heli_common.jit import njit
+from heli_common.kinematics import euler_rates, rot_body_to_earth
+from heli_common.state import (
     EPS,
     ETA,
     N_STATE,

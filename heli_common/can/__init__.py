@@ -1,0 +1,1 @@
+"""CAN: python-can buses (``bus``) and the DroneCAN codec with checked reassembly."""
