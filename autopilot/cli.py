@@ -26,6 +26,7 @@ from autopilot.tlc.controller import TLController
 from heli_common.config import ConfigError
 from heli_common.geo import GeoPoint
 from heli_common.mavlink.udp import LOOPBACK, PortBusyError
+from heli_common.mavlink.wire import SigningKeyError, read_signing_key
 from heli_common.servo_link import add_servo_args, load_servo_link, with_overrides
 from heli_common.servo_map import limits_array
 
@@ -83,20 +84,12 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as exc:
         print(f"heli-autopilot: config error: {exc}", file=sys.stderr)
         return 2
+    except SigningKeyError as exc:
+        print(f"heli-autopilot: {exc}", file=sys.stderr)
+        return 2
     except PortBusyError as exc:
         print(f"heli-autopilot: {exc.strerror}", file=sys.stderr)
         return 3
-
-
-def read_signing_key(path: str) -> bytes:
-    raw = Path(path).read_bytes().strip()
-    try:
-        key = bytes.fromhex(raw.decode()) if len(raw) == 64 else raw
-    except ValueError as exc:
-        raise ConfigError(f"{path}: signing key: not 64 hex digits") from exc
-    if len(key) != 32:
-        raise ConfigError(f"{path}: signing key: expected 32 bytes (or 64 hex digits), got {len(raw)}")
-    return key
 
 
 def parse_home(text: str) -> GeoPoint:

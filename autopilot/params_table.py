@@ -46,12 +46,10 @@ from __future__ import annotations
 import dataclasses
 import enum
 import math
-import struct
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any, ClassVar, Literal
 
-import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
 from autopilot.tlc.gains import CommandLimits, DifferentiatorGains, Gains, LoopGains
@@ -59,6 +57,7 @@ from heli_common.airframe import PitchLimits
 from heli_common.config import spec
 from heli_common.geo import GeoPoint
 from heli_common.mavlink.udp import addressed_to
+from heli_common.mavlink.wire import decode_param, encode_param, f32
 
 Message = Any  # a pymavlink MAVLink_message (pymavlink is untyped)
 
@@ -129,11 +128,6 @@ class SetResult:
     accepted: bool
     value: float  # the value now held (unchanged if refused)
     reason: str = ""
-
-
-def _f32(value: float) -> float:
-    with np.errstate(over="ignore"):
-        return float(np.float32(value))
 
 
 def _range(cls: type, field_name: str) -> tuple[float, float, bool, str]:
@@ -269,7 +263,7 @@ class ParamTable:
         # or of a bound means exactly that (1.2 arrives as 1.2000000477 > 1.2).
         # An open bound is excluded, so nothing snaps to it.
         for exact in (current, s.hi) if s.lo_open else (current, s.lo, s.hi):
-            if math.isfinite(v) and _f32(v) == _f32(exact):
+            if math.isfinite(v) and f32(v) == f32(exact):
                 v = exact
         if s.param_type == INT32 and not (math.isfinite(v) and v.is_integer()):
             return SetResult(False, current, f"{name} must be an integer")
@@ -344,16 +338,11 @@ class ParamTable:
     def encode_value(self, key: str | int) -> float:
         """The float32 ``param_value`` carrying the parameter (byte-wise for INT32)."""
         s = self.spec(key)
-        v = self._values[s.name]
-        if s.param_type == INT32 and self.encoding == "bytewise":
-            return float(struct.unpack("<f", struct.pack("<i", int(v)))[0])
-        return v
+        return encode_param(self._values[s.name], s.param_type, self.encoding == "bytewise")
 
     def decode_value(self, param_value: float, param_type: int) -> float:
         """A received ``param_value`` of ``param_type`` -> the number it stands for."""
-        if param_type == INT32 and self.encoding == "bytewise":
-            return float(struct.unpack("<i", struct.pack("<f", param_value))[0])
-        return float(param_value)
+        return decode_param(param_value, param_type, self.encoding == "bytewise")
 
     def param_value_message(self, key: str | int) -> Message:
         """PARAM_VALUE for one parameter (param_count and param_index filled in)."""

@@ -55,7 +55,6 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from autopilot import mission as ms
 from autopilot.trajectory.base import Trajectory
 from autopilot.trajectory.sampled import SampledTrajectory
 from autopilot.trajectory.waypoints import (
@@ -65,6 +64,7 @@ from autopilot.trajectory.waypoints import (
 )
 from heli_common.frames import flip
 from heli_common.geo import GeoPoint
+from heli_common.mavlink import mission_items as ms
 from heli_common.state import FloatArray
 
 FORMAT_VERSION = 1

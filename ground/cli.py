@@ -24,11 +24,11 @@ from ground.client import (
     GroundClient,
     GroundError,
     MissionProgress,
-    read_signing_key,
 )
 from ground.files import FileFormatError, MissionFile, load_mission
 from ground.log import TlogError, tlog_columns, write_csv
 from heli_common.mavlink.udp import PortBusyError, TlogWriter, mavlink2
+from heli_common.mavlink.wire import SigningKeyError, read_signing_key
 
 PROG = "heli-ground"
 HOME_MISMATCH_M = 1.0  # warn when a file's home is farther than this from the vehicle's
@@ -119,9 +119,7 @@ def _client(args: argparse.Namespace, tlog: TlogWriter | None = None) -> GroundC
     if args.signing_key is not None:
         try:
             key = read_signing_key(args.signing_key)
-        except OSError as exc:
-            raise UsageError(f"{args.signing_key}: cannot read the signing key: {exc.strerror}") from exc
-        except GroundError as exc:  # a malformed key file is bad input, not a vehicle failure
+        except SigningKeyError as exc:  # a missing or malformed key file is bad input
             raise UsageError(str(exc)) from exc
     try:
         return GroundClient(args.gcs_port, signing_key=key, tlog=tlog)

@@ -23,19 +23,16 @@ from __future__ import annotations
 
 import functools
 import math
-import struct
 import time
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
-from pathlib import Path
 
-import numpy as np
-
-from autopilot.mission import MissionItem
 from heli_common.closing import Closing
 from heli_common.geo import GeoPoint
+from heli_common.mavlink.mission_items import MissionItem
 from heli_common.mavlink.udp import LOOPBACK, Address, MavlinkUdp, Message, TlogWriter, mavlink2
+from heli_common.mavlink.wire import decode_param, encode_param, f32
 
 m2 = mavlink2
 
@@ -74,19 +71,6 @@ def enum_name(enum: str, value: int) -> str:
     """MAVLink enum value -> its name (``MAV_RESULT_DENIED``), or the number if unknown."""
     entry = m2.enums.get(enum, {}).get(int(value))
     return str(entry.name) if entry is not None else f"{enum}({value})"
-
-
-def read_signing_key(path: Path | str) -> bytes:
-    """A MAVLink 2 signing key file: 32 raw bytes or 64 hex digits (as heli-autopilot reads it)."""
-    raw = Path(path).read_bytes().strip()
-    if len(raw) == 64:
-        try:
-            return bytes.fromhex(raw.decode("ascii"))
-        except (UnicodeDecodeError, ValueError) as exc:
-            raise GroundError(f"{path}: signing key: not 64 hex digits") from exc
-    if len(raw) != 32:
-        raise GroundError(f"{path}: signing key: expected 32 bytes or 64 hex digits, got {len(raw)} bytes")
-    return raw
 
 
 def px4_mode(custom_mode: int) -> tuple[int, int]:
@@ -548,20 +532,17 @@ class GroundClient(Closing):
     # ----------------------------------------------------------------- parameters
 
     def _decode_param(self, m: Message) -> ParamValue:
-        value = float(m.param_value)
-        if m.param_type == m2.MAV_PARAM_TYPE_INT32:
-            # Byte-wise encoding (the vehicle advertises MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE)
-            value = float(struct.unpack("<i", struct.pack("<f", value))[0])
+        # Byte-wise encoding (the vehicle advertises MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE)
+        value = decode_param(float(m.param_value), int(m.param_type), bytewise=True)
         name = _param_name(m.param_id)
         self._param_types[name] = int(m.param_type)
         return ParamValue(name, value, int(m.param_type), int(m.param_index), int(m.param_count))
 
     def _encode_param(self, value: float, param_type: int) -> float:
-        if param_type == m2.MAV_PARAM_TYPE_INT32:
-            if not (math.isfinite(value) and float(value).is_integer()):
-                raise ParamError(f"{value} is not an integer")
-            return float(struct.unpack("<f", struct.pack("<i", int(value)))[0])
-        return float(value)
+        try:
+            return encode_param(value, param_type, bytewise=True)
+        except ValueError as exc:
+            raise ParamError(str(exc)) from exc
 
     def _param_answer(self, name: str, timeout_s: float, t0: float) -> Message | None:
         """PARAM_VALUE for ``name``; None on timeout; ParamError if the vehicle says unknown."""
@@ -605,10 +586,8 @@ class GroundClient(Closing):
             if got is None:
                 continue
             pv = self._decode_param(got)
-            if ptype == m2.MAV_PARAM_TYPE_INT32:
-                accepted = pv.value == value
-            else:
-                accepted = _f32(pv.value) == _f32(value)  # both sides see float32 on the wire
+            # both sides see float32 on the wire (an INT32 arrives exactly)
+            accepted = pv.value == value if ptype == m2.MAV_PARAM_TYPE_INT32 else f32(pv.value) == f32(value)
             self.poll(0.05)  # a refusal's STATUSTEXT follows the PARAM_VALUE
             reason = "" if accepted else self._texts_since(t0)
             return ParamSetResult(accepted, pv, reason)
@@ -655,8 +634,3 @@ def _mission_error(what: str, code: int, why: str = "") -> MissionRefusedError:
 def _param_name(param_id: str | bytes) -> str:
     raw = param_id.encode("latin-1") if isinstance(param_id, str) else bytes(param_id)
     return raw.split(b"\0", 1)[0].decode("ascii", "replace")
-
-
-def _f32(v: float) -> float:
-    with np.errstate(over="ignore"):
-        return float(np.float32(v))

@@ -49,13 +49,13 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from autopilot import mission as ms
 from autopilot import trajectory_codec as codec
-from autopilot.mission import MissionItem
 from autopilot.trajectory.analytic import PaperSpiralCircle
 from autopilot.trajectory.factory import trajectory_from_table
 from heli_common.config import ConfigError
 from heli_common.geo import GeoPoint
+from heli_common.mavlink import mission_items as ms
+from heli_common.mavlink.mission_items import MissionItem
 
 WPL_HEADER = "QGC WPL 110"
 WPL_COLUMNS = 12

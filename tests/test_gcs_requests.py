@@ -16,8 +16,8 @@ from pathlib import Path
 import pytest
 from test_ground_client import client, gwp, running_vehicle
 
-from autopilot import mission as ms
 from ground.client import GroundClient
+from heli_common.mavlink import mission_items as ms
 from heli_common.mavlink.udp import Message, mavlink2
 from heli_sitl.children import spawn
 

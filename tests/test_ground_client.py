@@ -24,9 +24,7 @@ import numpy as np
 import pytest
 from vehicle import free_ports, spawn_up
 
-from autopilot import mission as ms
 from autopilot import trajectory_codec as codec
-from autopilot.mission import MissionItem
 from autopilot.trajectory.analytic import StraightLine
 from ground import cli
 from ground.client import (
@@ -39,6 +37,8 @@ from ground.client import (
 from ground.files import write_waypoints
 from heli_common.frames import flip
 from heli_common.geo import GeoPoint, nwu_to_geo
+from heli_common.mavlink import mission_items as ms
+from heli_common.mavlink.mission_items import MissionItem
 from heli_common.mavlink.udp import Message, free_udp_port, mavlink2
 from heli_sitl.children import Child
 

@@ -13,13 +13,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from autopilot import mission as ms
 from autopilot import trajectory_codec as codec
-from autopilot.mission import MissionItem
 from autopilot.trajectory.analytic import PaperSpiralCircle
 from ground import files
 from ground.files import FileFormatError, TrajectorySamples
 from heli_common.geo import GeoPoint, nwu_to_geo
+from heli_common.mavlink import mission_items as ms
+from heli_common.mavlink.mission_items import MissionItem
 
 HOME = GeoPoint(47.397742, 8.545594, 488.0)
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"

@@ -31,12 +31,12 @@ import numpy as np
 import pytest
 from vehicle import free_ports, spawn_up
 
-from autopilot import mission as ms
-from autopilot.mission import MissionItem
 from ground.client import GroundClient
 from ground.files import read_waypoints, write_waypoints
 from heli_common.frames import flip
 from heli_common.geo import GeoPoint, nwu_to_geo
+from heli_common.mavlink import mission_items as ms
+from heli_common.mavlink.mission_items import MissionItem
 from heli_common.mavlink.udp import Message
 from heli_sitl.children import die_with_parent
 

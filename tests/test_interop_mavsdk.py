@@ -25,9 +25,9 @@ import numpy as np
 import pytest
 from vehicle import free_ports, spawn_up
 
-from autopilot import mission as ms
 from heli_common.frames import flip
 from heli_common.geo import GeoPoint, nwu_to_geo
+from heli_common.mavlink import mission_items as ms
 
 try:
     from mavsdk.asyncio import ComponentType, Configuration, Mavsdk

@@ -21,16 +21,16 @@ import numpy as np
 import pytest
 from vehicle import free_ports, spawn_up
 
-from autopilot import mission as ms
 from autopilot import telemetry
 from autopilot.metrics import CSV_HEADER
-from autopilot.mission import MissionItem
 from ground import cli
 from ground.files import write_waypoints
 from ground.log import TlogError, TlogStats, read_tlog, tlog_columns
 from heli_common import servo_map
 from heli_common.airframe import Airframe
 from heli_common.geo import GeoPoint, nwu_to_geo
+from heli_common.mavlink import mission_items as ms
+from heli_common.mavlink.mission_items import MissionItem
 from heli_common.mavlink.udp import TlogWriter
 from heli_sitl.children import Child, die_with_parent, spawn
 

@@ -13,13 +13,15 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import common as mavlink
 
-from autopilot import mission as ms
 from autopilot import trajectory_codec as codec
-from autopilot.mission import MissionItem, MissionServer
+from autopilot.mission.checks import check_item
+from autopilot.mission.server import MissionServer
 from autopilot.trajectory.analytic import PaperSpiralCircle
 from autopilot.trajectory.sampled import SampledTrajectory
 from autopilot.trajectory.waypoints import WaypointTrajectory
 from heli_common.geo import GeoPoint
+from heli_common.mavlink import mission_items as ms
+from heli_common.mavlink.mission_items import MissionItem
 
 HOME = GeoPoint(47.397742, 8.545594, 488.0)
 
@@ -60,7 +62,7 @@ def test_encoding_layout() -> None:
     assert (s1.x, s1.y, s1.z) == (10_000, 20_000, -3.0)
     assert (s1.param1, s1.param2, s1.param3) == (0.5, 4.0, 0.0)
     assert s1.param4 == pytest.approx(-math.degrees(0.5), abs=1e-4)  # NED yaw = -NWU yaw
-    assert all(ms.check_item(it, HOME) == ms.ACCEPTED for it in items)
+    assert all(check_item(it, HOME) == ms.ACCEPTED for it in items)
 
 
 def test_paper_spiral_at_half_second_is_242_items() -> None:

@@ -9,8 +9,6 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from autopilot import mission as ms
-from autopilot.mission import MissionItem
 from autopilot.trajectory.base import Trajectory
 from autopilot.trajectory.sampled import SampledTrajectory
 from autopilot.trajectory.waypoints import (
@@ -28,6 +26,8 @@ from heli_common.geo import (
     ned_to_geo,
     nwu_to_geo,
 )
+from heli_common.mavlink import mission_items as ms
+from heli_common.mavlink.mission_items import MissionItem
 
 HOME = GeoPoint(47.397742, 8.545594, 488.0)
 LIM = FlightLimits()

@@ -22,13 +22,14 @@ import numpy as np
 
 from autopilot import telemetry
 from autopilot.flight_log import heartbeat
-from autopilot.mission import MissionItem, MissionServer
+from autopilot.mission.server import MissionServer
 from autopilot.modes import Flight, Mode, landed
 from autopilot.params_table import ParamTable
 from autopilot.trajectory.waypoints import FlightLimits, WaypointTrajectory
 from autopilot.trajectory_codec import check_mission, mission_to_trajectory
 from heli_common.geo import GeoPoint, nwu_to_geo
 from heli_common.kinematics import rot_body_to_earth
+from heli_common.mavlink.mission_items import MissionItem
 from heli_common.mavlink.udp import LOOPBACK, Address, MavlinkUdp, Message, mavlink2
 from heli_common.ratelog import RateLimitedLog
 from heli_common.state import EULER, POS, VEL, FloatArray

@@ -35,10 +35,10 @@ from dataclasses import dataclass, replace
 import numpy as np
 import numpy.typing as npt
 
-from autopilot import mission as ms
 from autopilot.trajectory.base import Trajectory
 from heli_common.frames import flip
 from heli_common.geo import GeoPoint
+from heli_common.mavlink import mission_items as ms
 from heli_common.state import FloatArray
 
 # smootherstep ramp: peak acceleration = RAMP_ACC_FACTOR * V / T_ramp
