@@ -14,17 +14,19 @@ from types import FrameType
 
 import numpy as np
 
+from autopilot.flight.commands import Arm, FlyTrajectory
+from autopilot.flight.manager import FlightConfig, FlightManager
 from autopilot.flight_log import write_flight_tlog
-from autopilot.links.can_servo import CanServoSender
+from autopilot.links.can_servo import CanServoOutput, CanServoSender
 from autopilot.links.mavlink_gcs import GcsConfig, GcsService
 from autopilot.links.mavlink_sim import SimLink
-from autopilot.modes import Flight
 from autopilot.params_table import ParamTable
-from autopilot.runner import Recorder, Runner, RunnerConfig, ServoOutput, TickHook
+from autopilot.runner import Recorder, Runner, RunnerConfig, TickHook
 from autopilot.scenario import Scenario
 from autopilot.tlc.controller import TLController
 from heli_common.config import ConfigError
 from heli_common.geo import GeoPoint
+from heli_common.links import ServoOutput
 from heli_common.mavlink.udp import LOOPBACK, PortBusyError
 from heli_common.mavlink.wire import SigningKeyError, read_signing_key
 from heli_common.servo_link import add_servo_args, load_servo_link, with_overrides
@@ -100,10 +102,12 @@ def parse_home(text: str) -> GeoPoint:
         raise ConfigError(f"--home {text!r}: expected lat,lon,alt ({exc})") from exc
 
 
-def apply_params(ctrl: TLController, table: ParamTable) -> None:
-    """Between two control steps: new gains and pitch limits (integrals and filters kept)."""
+def apply_params(ctrl: TLController, manager: FlightManager, table: ParamTable) -> None:
+    """Between two control steps: new gains, pitch limits (integrals and filters kept) and
+    failsafe timeouts."""
     ctrl.set_gains(table.gains())
     ctrl.set_limits(table.pitch_limits())
+    manager.offboard_timeout_s = table.failsafe().offboard_timeout_s
 
 
 def make_gcs(args: argparse.Namespace, sc: Scenario, ctrl: TLController, limits: np.ndarray) -> GcsService:
@@ -117,24 +121,16 @@ def make_gcs(args: argparse.Namespace, sc: Scenario, ctrl: TLController, limits:
     return GcsService(cfg, table, lambda _t: None, limits)
 
 
-def can_output(sender: CanServoSender) -> ServoOutput:
-    """Pitches to DroneCAN; there is no arming on the servo bus (disarmed sends zeros)."""
-
-    def send(t_us: int, pitches_rad: np.ndarray, armed: bool) -> None:
-        sender.send(pitches_rad, t_us / 1e6)
-
-    return send
-
-
 def run(args: argparse.Namespace, stop: threading.Event) -> int:
     sc = Scenario.load(args.scenario)
     rate = args.rate_hz or sc.run.rate_hz
     ctrl = TLController(sc.airframe, sc.gains, rate, args.feedforward or sc.run.feedforward)
     limits = limits_array(sc.airframe.limits.as_tuple())
-    flight = Flight()
+    manager = FlightManager(FlightConfig(home=parse_home(args.home)))
     if args.autostart:
-        flight.start(sc.trajectory, 0.0)
-        flight.arm()
+        for cmd in (FlyTrajectory(sc.trajectory), Arm()):
+            reply = manager.execute(cmd, 0.0, np.zeros(12))
+            assert reply.accepted, reply
     duration = args.duration_s if args.duration_s is not None else (
         sc.run.duration_s if args.autostart else None
     )
@@ -151,13 +147,13 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
     hooks: list[TickHook] = [] if gcs is None else [gcs]
     try:
         with SimLink((LOOPBACK, args.port), (LOOPBACK, args.plant_port), limits) as sim:
-            runner = Runner(ctrl, flight, sim, cfg, hooks, recorder, servo_out=None,
+            servo_out: ServoOutput = CanServoOutput(can) if can is not None else sim
+            runner = Runner(ctrl, manager, sim, servo_out, cfg, hooks, recorder,
                             input_hooks=[gcs.poll] if gcs is not None else [])  # fmt: skip
-            if can is not None:
-                runner.servo_out = can_output(can)
             if gcs is not None:
+                gcs.attach(manager)
                 gcs.apply_params = lambda table: runner.between_ticks(
-                    lambda: apply_params(ctrl, table)
+                    lambda: apply_params(ctrl, manager, table)
                 )
             stats = runner.run(stop)
             link = sim.udp.stats.as_dict()

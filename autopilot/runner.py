@@ -18,22 +18,21 @@ from typing import Any
 
 import numpy as np
 
-from autopilot.links.mavlink_sim import SimLink
+from autopilot.flight.manager import FlightManager
 from autopilot.metrics import FlightRecord
-from autopilot.modes import Flight
 from autopilot.tlc.controller import N_DIAG, OK, TLController
+from heli_common.links import ServoOutput, StateSource
 from heli_common.mavlink.sim_protocol import StateSample
 from heli_common.state import N_PITCH, FloatArray
 
 log = logging.getLogger("autopilot.runner")
 LOCKSTEP_SPIN_S = 0.002  # poll this long before sleeping (see MavlinkUdp.wait)
 
-# (t_s, x, ref or None, pitches, flight) -> None: telemetry, logging, GCS services
-TickHook = Callable[[float, FloatArray, FloatArray | None, FloatArray, Flight], None]
-# (t_us of the state answered, pitches [rad], armed) -> None: where the command goes
-ServoOutput = Callable[[int, FloatArray, bool], None]
-# (t_s, x, flight) -> None: input services (GCS commands) run before the control law
-InputHook = Callable[[float, FloatArray, Flight], None]
+# (t_s, x, ref or None, pitches) -> None: telemetry, logging, GCS services; they run
+# after the tick's command has been sent, so they never delay it
+TickHook = Callable[[float, FloatArray, FloatArray | None, FloatArray], None]
+# (t_s, x) -> None: input services (GCS commands) run before the control law
+InputHook = Callable[[float, FloatArray], None]
 
 
 @dataclass(frozen=True)
@@ -106,23 +105,24 @@ class Runner:
     def __init__(
         self,
         ctrl: TLController,
-        flight: Flight,
-        sim: SimLink,
+        flight: FlightManager,
+        state_in: StateSource,
+        servo_out: ServoOutput,
         cfg: RunnerConfig,
         hooks: Sequence[TickHook] | None = None,
         recorder: Recorder | None = None,
-        servo_out: ServoOutput | None = None,
         input_hooks: Sequence[InputHook] | None = None,
     ) -> None:
         self.ctrl = ctrl
-        self.flight = flight
-        self.sim = sim
+        self.manager = flight
+        self.flight = flight.flight
+        self.state_in = state_in
+        self.servo_out = servo_out
         self.cfg = cfg
         self.hooks = list(hooks or [])
         self.input_hooks = list(input_hooks or [])
         self._last_t_s = 0.0
         self._last_x: FloatArray | None = None
-        self.servo_out: ServoOutput = servo_out or sim.send_pitches
         self.recorder = recorder
         self.stats = LoopStats()
         self.u = np.zeros(N_PITCH)
@@ -138,13 +138,16 @@ class Runner:
     def service(self, t_s: float, x: FloatArray) -> None:
         """Input services (GCS commands, parameter sets); also run while the plant is quiet."""
         for hook in self.input_hooks:
-            hook(t_s, x, self.flight)
+            hook(t_s, x)
         while self._between:
             self._between.pop(0)()
 
-    def tick(self, t_s: float, x: FloatArray) -> FloatArray:
+    def tick(self, t_s: float, x: FloatArray, t_us: int | None = None) -> FloatArray:
+        """One control step at ``t_s``; the command goes out (answering the state stamped
+        ``t_us``) before the tick hooks run. ``t_us`` None: compute only, send nothing."""
         self._last_t_s, self._last_x = t_s, x
         self.service(t_s, x)
+        self.manager.pre_tick(t_s, x)
         if self._wall0 is None and self.flight.armed:
             self._wall0 = time.perf_counter()
             self._t_arm_s = t_s
@@ -161,8 +164,11 @@ class Runner:
             if self.recorder is not None:  # flight time: since arming
                 self.recorder.add(t_s - self._t_arm_s, x, ref, u, self.ctrl.diag)
         self.stats.ticks += 1
+        if t_us is not None:
+            self.servo_out.send_pitches(t_us, self.u, self.flight.armed)
+        self.manager.post_tick(t_s, x)
         for hook in self.hooks:
-            hook(t_s, x, ref, self.u, self.flight)
+            hook(t_s, x, ref, self.u)
         return self.u
 
     def _done(self, t_s: float) -> bool:
@@ -192,7 +198,7 @@ class Runner:
         last_t_us = -1
         last_state = time.monotonic()
         while not stop.is_set():
-            s = self.sim.latest_state(0.05, spin_s=LOCKSTEP_SPIN_S)
+            s = self.state_in.latest_state(0.05, spin_s=LOCKSTEP_SPIN_S)
             now = time.monotonic()
             if s is None:
                 self._stale(now - last_state > self.cfg.stale_timeout_s)
@@ -202,13 +208,12 @@ class Runner:
             last_state = now
             self._stale(False)
             if s.t_us == last_t_us:  # re-sent by the plant: our answer was lost, send it again
-                self.servo_out(s.t_us, self.u, self.flight.armed)
+                self.servo_out.send_pitches(s.t_us, self.u, self.flight.armed)
                 continue
             t_s = s.t_us / 1e6
             if self._done(t_s):
                 break
-            u = self.tick(t_s, s.x)
-            self.servo_out(s.t_us, u, self.flight.armed)
+            self.tick(t_s, s.x, s.t_us)
             last_t_us = s.t_us
 
     def _run_realtime(self, stop: threading.Event) -> None:
@@ -232,15 +237,15 @@ class Runner:
                 continue
             if late >= period:
                 self.stats.overruns += 1
-            s = self.sim.latest_state(0.0)
+            s = self.state_in.latest_state(0.0)
             if s is not None and (latest is None or s.t_us > latest.t_us):
                 latest, latest_at = s, wake
             elif latest is not None:
                 self.stats.stale_ticks += 1
             if latest is None:  # the plant has not spoken yet: wait for it, clock not started
                 start = time.monotonic()
-                self.sim.latest_state(0.01)  # keep the socket drained
-                s = self.sim.latest_state(0.0)
+                self.state_in.latest_state(0.01)  # keep the socket drained
+                s = self.state_in.latest_state(0.0)
                 if s is not None:
                     latest, latest_at = s, time.monotonic()
                     start = latest_at
@@ -252,6 +257,7 @@ class Runner:
             if self._done(t_s):
                 break
             if not self.stats.plant_stale:
-                self.u = self.tick(t_s, latest.x)
-            self.servo_out(latest.t_us, self.u, self.flight.armed)
+                self.tick(t_s, latest.x, latest.t_us)
+            else:
+                self.servo_out.send_pitches(latest.t_us, self.u, self.flight.armed)
             k += 1

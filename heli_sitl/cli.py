@@ -87,14 +87,17 @@ def _run(args: argparse.Namespace) -> int:
         return 3
     servo = with_overrides(load_servo_link(args.links), args.servo_link, args.can_bus, args.actuator_ids)
     can = None
+    servo_in = None
     if servo.link == "can":
         from heli_sitl.plant.can_endpoint import CanServoEndpoint
+        from heli_sitl.plant.servo_inputs import CanServoInput
 
         can = CanServoEndpoint(servo.can_bus, limits=airframe.limits, actuator_ids=servo.actuator_ids,
                                timeout_s=servo.timeout_s)  # fmt: skip
+        servo_in = CanServoInput(can)
     try:
         with link:
-            stats = PlantServer(plant, link, cfg, can).run(stop)
+            stats = PlantServer(plant, link, cfg, servo_in).run(stop)
     finally:
         if can is not None:
             stats.extra["can"] = dict(can.stats)

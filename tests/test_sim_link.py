@@ -11,14 +11,16 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from numpy.testing import assert_allclose
 
+from autopilot.flight.commands import Arm, FlyTrajectory
+from autopilot.flight.manager import FlightConfig, FlightManager
 from autopilot.links.mavlink_sim import SimLink
-from autopilot.modes import Flight
 from autopilot.runner import Runner, RunnerConfig
 from autopilot.scenario import Scenario
 from autopilot.tlc.controller import S_I1, S_I4, TLController
 from autopilot.trajectory.analytic import StraightLine
 from heli_common import servo_map
 from heli_common.airframe import Airframe
+from heli_common.geo import GeoPoint
 from heli_common.mavlink.sim_protocol import StateAssembler, command_message, decode_command, state_messages
 from heli_common.mavlink.udp import LOOPBACK, MavlinkUdp, PortBusyError, mavlink2
 
@@ -138,11 +140,11 @@ def paper() -> Scenario:
     return Scenario.load("paper")
 
 
-def _runner(paper: Scenario) -> tuple[Runner, TLController, Flight]:
+def _runner(paper: Scenario) -> tuple[Runner, TLController, FlightManager]:
     ctrl = TLController(paper.airframe, paper.gains, 100.0)
-    flight = Flight()
+    manager = FlightManager(FlightConfig(home=GeoPoint(47.4, 8.5, 488.0)))
     sim = SimLink((LOOPBACK, 0), (LOOPBACK, 9), LIMITS)
-    return Runner(ctrl, flight, sim, RunnerConfig()), ctrl, flight
+    return Runner(ctrl, manager, sim, sim, RunnerConfig()), ctrl, manager
 
 
 def test_disarmed_gives_zero_pitch_and_no_integration(paper: Scenario) -> None:
@@ -152,18 +154,19 @@ def test_disarmed_gives_zero_pitch_and_no_integration(paper: Scenario) -> None:
         u = runner.tick(k * 0.01, x)
         assert np.all(u == 0.0)
     assert np.all(ctrl.state == 0.0)
-    runner.sim.close()
+    runner.state_in.close()
 
 
 def test_landed_with_ground_command_does_not_wind_up(paper: Scenario) -> None:
-    runner, ctrl, flight = _runner(paper)
-    flight.start(StraightLine(start_nwu_m=(1.0, -1.0, 0.0), duration_s=10.0), 0.0)
-    flight.arm()
+    runner, ctrl, manager = _runner(paper)
+    line = StraightLine(start_nwu_m=(1.0, -1.0, 0.0), duration_s=10.0)
+    for cmd in (FlyTrajectory(line), Arm()):
+        assert manager.execute(cmd, 0.0, np.zeros(12)).accepted
     x = np.zeros(12)  # on the ground, 1.4 m from a command that is also on the ground
     for k in range(500):
         runner.tick(k * 0.01, x)
     assert np.all(ctrl.state[S_I1 : S_I4 + 3] == 0.0)
-    runner.sim.close()
+    runner.state_in.close()
 
 
 def test_disarmed_on_the_ground_does_not_yaw() -> None:

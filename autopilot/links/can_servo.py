@@ -39,7 +39,7 @@ from heli_common.can.dronecan_codec import (
 )
 from heli_common.closing import Closing
 from heli_common.ratelog import RateLimitedLog
-from heli_common.state import N_PITCH
+from heli_common.state import N_PITCH, FloatArray
 
 log = logging.getLogger(__name__)
 
@@ -168,3 +168,15 @@ class CanServoSender(Closing):
             if msg is None:
                 return
             self.stats["rx_discarded"] += 1
+
+
+class CanServoOutput:
+    """The runner's :class:`heli_common.links.ServoOutput` over DroneCAN: the pitches of
+    each tick, stamped with its time; the servo bus carries no arming (disarmed sends
+    the zero pitches the runner computes)."""
+
+    def __init__(self, sender: CanServoSender) -> None:
+        self.sender = sender
+
+    def send_pitches(self, t_us: int, pitches_rad: FloatArray, armed: bool) -> None:
+        self.sender.send(pitches_rad, t_us / 1e6)

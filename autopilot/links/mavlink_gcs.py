@@ -21,12 +21,14 @@ from typing import Any
 import numpy as np
 
 from autopilot import telemetry
+from autopilot.flight import commands as c
+from autopilot.flight.manager import FlightManager, LandedState, MissionState
+from autopilot.flight.modes import Mode
 from autopilot.flight_log import heartbeat
 from autopilot.mission.server import MissionServer
-from autopilot.modes import Flight, Mode, landed
 from autopilot.params_table import ParamTable
-from autopilot.trajectory.waypoints import FlightLimits, WaypointTrajectory
-from autopilot.trajectory_codec import check_mission, mission_to_trajectory
+from autopilot.trajectory.waypoints import FlightLimits
+from autopilot.trajectory_codec import check_mission
 from heli_common.geo import GeoPoint, nwu_to_geo
 from heli_common.kinematics import rot_body_to_earth
 from heli_common.mavlink.mission_items import MissionItem
@@ -100,7 +102,19 @@ CAPABILITIES = (
     | m2.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
 )
 FORCE_DISARM_MAGIC = 21196
-DEFAULT_TAKEOFF_ALT_M = 2.5
+MAV_RESULT = {
+    c.Result.ACCEPTED: m2.MAV_RESULT_ACCEPTED, c.Result.DENIED: m2.MAV_RESULT_DENIED,
+    c.Result.UNSUPPORTED: m2.MAV_RESULT_UNSUPPORTED, c.Result.FAILED: m2.MAV_RESULT_FAILED,
+}  # fmt: skip
+MAV_SEVERITY = {c.Severity.INFO: m2.MAV_SEVERITY_INFO, c.Severity.WARNING: m2.MAV_SEVERITY_WARNING}
+LANDED_STATE = {
+    LandedState.ON_GROUND: m2.MAV_LANDED_STATE_ON_GROUND, LandedState.IN_AIR: m2.MAV_LANDED_STATE_IN_AIR,
+    LandedState.LANDING: m2.MAV_LANDED_STATE_LANDING,
+}  # fmt: skip
+MISSION_STATE = {
+    MissionState.NONE: None, MissionState.ACTIVE: m2.MISSION_STATE_ACTIVE,
+    MissionState.COMPLETE: m2.MISSION_STATE_COMPLETE,
+}  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -116,14 +130,9 @@ class GcsConfig:
     rates_hz: dict[int, float] = field(default_factory=lambda: dict(DEFAULT_RATES_HZ))
 
 
-@dataclass
-class Offboard:
-    ref_nwu: FloatArray  # pos, vel, acc (NaN where not given)
-    received_t_s: float
-
-
 class GcsService:
-    """Owns the two GCS sockets; call it once per control tick (runner hook)."""
+    """Owns the two GCS sockets and translates MAVLink to the flight manager's commands and
+    its replies and events back; call it once per control tick (runner hooks)."""
 
     def __init__(
         self,
@@ -138,6 +147,7 @@ class GcsService:
         self.apply_params = apply_params
         self.limits = limits
         self.flight_limits = flight_limits or FlightLimits()
+        self.manager: FlightManager | None = None  # the runner's, set by attach()
         self.links = [
             MavlinkUdp((cfg.host, cfg.local_gcs_port), (cfg.host, cfg.gcs_port), drop_nonfinite=False),
             MavlinkUdp((cfg.host, cfg.local_api_port), (cfg.host, cfg.api_port), drop_nonfinite=False),
@@ -151,21 +161,19 @@ class GcsService:
         )
         self.intervals_s = {k: 1.0 / v for k, v in cfg.rates_hz.items() if v > 0}
         self.next_due: dict[int, float] = {}
-        self.offboard: Offboard | None = None
-        self.texts: list[tuple[int, str]] = []
         self.refused = 0
         self._t = 0.0
         self._x: FloatArray = np.zeros(12)
         self._ref: FloatArray | None = None
         self._u: FloatArray = np.zeros(4)
-        self._flight: Flight | None = None
-        self._prev_tau: float | None = None
         self._broken: set[int] = set()
         self._errors = RateLimitedLog(log, interval_s=10.0)
         self.handler_errors = 0
-        self.mission_on_arm = False  # mission mode selected while disarmed
-        self._mission_traj: WaypointTrajectory | None = None
-        self._mission_done = False
+
+    def attach(self, manager: FlightManager) -> None:
+        """Serve this vehicle's flight manager (it reads the stored mission from us)."""
+        self.manager = manager
+        manager.set_mission_source(lambda: self.missions.mission)
 
     # -- lifecycle ------------------------------------------------------------------------
     def close(self) -> None:
@@ -178,9 +186,9 @@ class GcsService:
         return out
 
     # -- the runner's hooks ----------------------------------------------------------------
-    def poll(self, t_s: float, x: FloatArray, flight: Flight) -> None:
+    def poll(self, t_s: float, x: FloatArray) -> None:
         """Input hook (before the control law): commands, parameters, missions, setpoints."""
-        self._t, self._x, self._flight = t_s, x, flight
+        self._t, self._x = t_s, x
         for link in self.links:
             for msg, addr in link.recv():
                 try:
@@ -188,16 +196,25 @@ class GcsService:
                 except Exception:  # a handler bug must not take the vehicle down
                     self._handler_error(msg.get_type())
         self._send_all(self.missions.tick(t_s))
-        self._offboard_timeout(flight)
 
-    def __call__(
-        self, t_s: float, x: FloatArray, ref: FloatArray | None, u: FloatArray, flight: Flight
-    ) -> None:
-        """Tick hook (after the control law): mission progress and telemetry."""
-        self._t, self._x, self._ref, self._u, self._flight = t_s, x, ref, u, flight
-        self._mission_progress(flight)
-        self._auto_disarm(flight)
+    def __call__(self, t_s: float, x: FloatArray, ref: FloatArray | None, u: FloatArray) -> None:
+        """Tick hook (after the control law): the flight's events, and telemetry."""
+        self._t, self._x, self._ref, self._u = t_s, x, ref, u
+        self._report_events()
         self._telemetry()
+
+    def _report_events(self) -> None:
+        if self.manager is None:
+            return
+        out: list[Message] = []
+        for ev in self.manager.take_events():
+            if isinstance(ev, c.Text):
+                self.statustext(MAV_SEVERITY[ev.severity], ev.text)
+            elif isinstance(ev, c.ItemReached):
+                out += self.missions.item_reached(ev.seq)
+            else:
+                out += self.missions.set_current(ev.seq)
+        self._send_all(out)
 
     def _handler_error(self, kind: str) -> None:
         """Count a handler's exception; log it rate-limited (traceback once per kind): a
@@ -239,12 +256,12 @@ class GcsService:
         """Build one telemetry message from the latest tick, or None if not available."""
         t_us = int(self._t * 1e6)
         t_ms = int(self._t * 1e3)
-        x, home, flight = self._x, self.cfg.home, self._flight
-        armed = flight.armed if flight else False
+        x, home, mgr = self._x, self.cfg.home, self.manager
+        armed = mgr.armed if mgr else False
         if msg_id == m2.MAVLINK_MSG_ID_HEARTBEAT:
             hb = heartbeat(armed)
-            mode = flight.mode if flight else Mode.IDLE
-            main, sub = MODE_TO_PX4[Mode.AUTO if self.mission_on_arm else mode]
+            mode = mgr.mode if mgr else Mode.IDLE
+            main, sub = MODE_TO_PX4[mode]
             hb.custom_mode = (main << 16) | (sub << 24)
             if mode is Mode.AUTO:
                 hb.base_mode |= m2.MAV_MODE_FLAG_AUTO_ENABLED
@@ -256,7 +273,7 @@ class GcsService:
                        | m2.MAV_SYS_STATUS_SENSOR_GPS)  # fmt: skip
             # pre-arm check: healthy when arming would be accepted (MAVSDK is_armable, QGC)
             prearm = m2.MAV_SYS_STATUS_PREARM_CHECK
-            healthy = sensors | (prearm if self._armable() else 0)
+            healthy = sensors | (prearm if mgr is not None and mgr.armable() else 0)
             return m2.MAVLink_sys_status_message(
                 sensors | prearm, sensors | prearm, healthy, 100, 0xFFFF, -1, -1, 0, 0, 0, 0, 0, 0
             )
@@ -286,19 +303,15 @@ class GcsService:
                 t_us,
             )  # fmt: skip
         if msg_id == m2.MAVLINK_MSG_ID_EXTENDED_SYS_STATE:
-            return m2.MAVLink_extended_sys_state_message(
-                m2.MAV_VTOL_STATE_UNDEFINED, self._landed_state()
-            )
+            landed = mgr.landed_state(x) if mgr else LandedState.ON_GROUND
+            return m2.MAVLink_extended_sys_state_message(m2.MAV_VTOL_STATE_UNDEFINED, LANDED_STATE[landed])
         if msg_id == m2.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED:
             return telemetry.position_target(t_us, self._ref) if self._ref is not None else None
         if msg_id == m2.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW:
             return telemetry.servo_output(t_us, self._u, self.limits)
         if msg_id == m2.MAVLINK_MSG_ID_MISSION_CURRENT:
-            state = None  # the server's default: NOT_STARTED, or NO_MISSION
-            if self._mission_traj is not None:
-                state = m2.MISSION_STATE_ACTIVE
-            elif self._mission_done:
-                state = m2.MISSION_STATE_COMPLETE
+            # None: the server's default, NOT_STARTED or NO_MISSION
+            state = MISSION_STATE[mgr.mission_state()] if mgr else None
             return self.missions.mission_current_message(state)
         if msg_id == m2.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
             return m2.MAVLink_autopilot_version_message(
@@ -311,15 +324,6 @@ class GcsService:
         rt = rot_body_to_earth(e[0], e[1], e[2])
         v = rt @ self._x[VEL]
         return (float(v[0]), float(-v[1]), float(-v[2]))
-
-    def _landed_state(self) -> int:
-        f = self._flight
-        state: int = m2.MAV_LANDED_STATE_IN_AIR
-        if f is None or not f.armed or landed(self._x):
-            state = m2.MAV_LANDED_STATE_ON_GROUND
-        elif f.mode is Mode.LAND:
-            state = m2.MAV_LANDED_STATE_LANDING
-        return state
 
     # -- receiving ------------------------------------------------------------------------
     def _dispatch(self, link: MavlinkUdp, addr: Address, msg: Message) -> None:
@@ -340,8 +344,7 @@ class GcsService:
             link.send(m2.MAVLink_timesync_message(int(self._t * 1e9), msg.ts1), to=addr)
 
     def _on_param(self, link: MavlinkUdp, addr: Address, msg: Message) -> None:
-        flight = self._flight
-        armed = flight.armed if flight else False
+        armed = self.manager.armed if self.manager else False
         before = {s.name: self.params.get(s.name) for s in self.params.specs}
         out = self.params.handle(msg, armed=armed)
         changed = any(self.params.get(n) != v for n, v in before.items())
@@ -369,10 +372,8 @@ class GcsService:
                     self.refused += 1
                     return
                 ref[off : off + 3] = (vals[0], -vals[1], -vals[2])  # NED -> NWU
-        if np.all(np.isnan(ref[0:3])):
+        if not self._execute(c.Setpoint(ref)).accepted:
             self.refused += 1  # this vehicle follows positions; velocity-only is not flown
-            return
-        self.offboard = Offboard(ref, self._t)
 
     # -- commands -------------------------------------------------------------------------
     def _ack(self, link: MavlinkUdp, addr: Address, msg: Message, result: int) -> None:
@@ -405,123 +406,51 @@ class GcsService:
             )
         self._ack(link, addr, msg, result)
 
-    def _armable(self) -> bool:
-        f = self._flight
-        return f is not None and (f.armed or bool(self.missions.mission) or f.mode is Mode.GUIDED)
+    def _execute(self, cmd: c.Command) -> c.Reply:
+        if self.manager is None:
+            return c.Reply(c.Result.FAILED, "Not ready")
+        return self.manager.execute(cmd, self._t, self._x)
 
-    def _flight_or_fail(self) -> Flight:
-        if self._flight is None:
-            raise RuntimeError("no tick yet")
-        return self._flight
+    def _fly(self, cmd: c.Command) -> tuple[int, str]:
+        reply = self._execute(cmd)
+        return MAV_RESULT[reply.result], reply.text
 
     def _cmd_arm(self, p: list[float], link: MavlinkUdp, addr: Address) -> tuple[int, str]:
-        f = self._flight_or_fail()
         if p[0] == 1.0:
-            has_plan = bool(self.missions.mission) or f.mode is Mode.GUIDED or f.trajectory is not None
-            if not has_plan:
-                return m2.MAV_RESULT_DENIED, "Arming refused: no mission or trajectory"
-            f.armed = True
-            if self.mission_on_arm and self.missions.mission:
-                # mission mode was selected while disarmed (as PX4): it starts now, so the
-                # trajectory's t = 0 is this tick
-                self.mission_on_arm = False
-                result, text = self._start_items(list(self.missions.mission), Mode.AUTO, mission=True)
-                if result != m2.MAV_RESULT_ACCEPTED:
-                    f.armed = False
-                    return result, text
-                return m2.MAV_RESULT_ACCEPTED, "Armed: mission started"
-            if f.mode is not Mode.GUIDED:  # armed in offboard: follow the setpoints at once
-                f.hold(self._x)
-            return m2.MAV_RESULT_ACCEPTED, "Armed"
+            return self._fly(c.Arm())
         if p[0] == 0.0:
-            ok, why = f.disarm(self._x, force=p[1] == FORCE_DISARM_MAGIC)
-            return (m2.MAV_RESULT_ACCEPTED if ok else m2.MAV_RESULT_DENIED), f"Disarm: {why}"
+            return self._fly(c.Disarm(force=p[1] == FORCE_DISARM_MAGIC))
         return m2.MAV_RESULT_DENIED, "Arm: param1 must be 0 or 1"
 
-    def _start_items(
-        self, items: list[MissionItem], mode: Mode, start_seq: int = 0, mission: bool = False
-    ) -> tuple[int, str]:
-        """Fly ``items`` from here; ``mission``: they are the stored mission, whose progress
-        (MISSION_CURRENT, MISSION_ITEM_REACHED) is reported."""
-        f = self._flight_or_fail()
-        try:
-            traj = mission_to_trajectory(items, self.cfg.home, self._x[POS].tolist(), self.flight_limits,
-                                         start_seq)  # fmt: skip
-        except ValueError as exc:
-            return m2.MAV_RESULT_DENIED, f"Refused: {exc}"[:50]
-        f.start(traj, self._t)
-        f.mode = mode
-        self._prev_tau = None
-        self._mission_traj = traj if mission and isinstance(traj, WaypointTrajectory) else None
-        self._mission_done = False
-        return m2.MAV_RESULT_ACCEPTED, ""
-
     def _cmd_mission_start(self, p: list[float], link: MavlinkUdp, addr: Address) -> tuple[int, str]:
-        f = self._flight_or_fail()
-        if not f.armed:
-            return m2.MAV_RESULT_DENIED, "Mission start refused: disarmed"
-        if not self.missions.mission:
-            return m2.MAV_RESULT_DENIED, "Mission start refused: no mission"
-        first = int(p[0]) if math.isfinite(p[0]) and p[0] > 0 else 0
-        self.missions.set_current(first)
-        result, text = self._start_items(list(self.missions.mission), Mode.AUTO, first, mission=True)
-        return result, text or "Mission started"
-
-    def _local_item(self, command: int, z_up_m: float | None = None) -> MissionItem:
-        """An item at the current position in MAV_FRAME_LOCAL_NED (x, y in 1e-4 m)."""
-        pos = self._x[POS]
-        z = -(pos[2] if z_up_m is None else z_up_m)
-        return MissionItem(0, m2.MAV_FRAME_LOCAL_NED, command, x=int(round(pos[0] * 1e4)),
-                           y=int(round(-pos[1] * 1e4)), z=z)  # fmt: skip
+        first = int(p[0]) if math.isfinite(p[0]) and 0 < p[0] < 65536 else 0
+        return self._fly(c.StartMission(first))
 
     def _cmd_takeoff(self, p: list[float], link: MavlinkUdp, addr: Address) -> tuple[int, str]:
-        f = self._flight_or_fail()
-        if not f.armed:
-            return m2.MAV_RESULT_DENIED, "Takeoff refused: disarmed"
-        alt = p[6] - self.cfg.home.alt_amsl_m if math.isfinite(p[6]) else DEFAULT_TAKEOFF_ALT_M
-        if not 0.5 <= alt <= 500.0:
-            return m2.MAV_RESULT_DENIED, f"Takeoff refused: altitude {alt:.1f} m"
-        result, text = self._start_items([self._local_item(m2.MAV_CMD_NAV_TAKEOFF, alt)], Mode.AUTO)
-        return result, text or f"Takeoff to {alt:.1f} m"
+        alt = p[6] - self.cfg.home.alt_amsl_m if math.isfinite(p[6]) else None
+        return self._fly(c.Takeoff(alt))
 
     def _cmd_land(self, p: list[float], link: MavlinkUdp, addr: Address) -> tuple[int, str]:
-        if not self._flight_or_fail().armed:
-            return m2.MAV_RESULT_DENIED, "Land refused: disarmed"
-        result, text = self._start_items([self._local_item(m2.MAV_CMD_NAV_LAND, 0.0)], Mode.LAND)
-        return result, text or "Landing"
+        return self._fly(c.Land())
 
     def _cmd_rtl(self, p: list[float], link: MavlinkUdp, addr: Address) -> tuple[int, str]:
-        if not self._flight_or_fail().armed:
-            return m2.MAV_RESULT_DENIED, "RTL refused: disarmed"
-        item = MissionItem(0, m2.MAV_FRAME_MISSION, m2.MAV_CMD_NAV_RETURN_TO_LAUNCH)
-        result, text = self._start_items([item], Mode.RTL)
-        return result, text or "Returning to launch"
+        return self._fly(c.ReturnToLaunch())
 
     def _cmd_set_mode(self, p: list[float], link: MavlinkUdp, addr: Address) -> tuple[int, str]:
-        f = self._flight_or_fail()
         main, sub = int(p[1]) if math.isfinite(p[1]) else -1, int(p[2]) if math.isfinite(p[2]) else 0
-        if main == PX4_MAIN_AUTO and sub == PX4_SUB_MISSION:
-            if not f.armed:
-                if not self.missions.mission:
-                    return m2.MAV_RESULT_DENIED, "Mission mode refused: no mission"
-                self.mission_on_arm = True
-                return m2.MAV_RESULT_ACCEPTED, "Mission mode: starts when armed"
-            return self._cmd_mission_start([0.0] * 7, link, addr)
-        if main == PX4_MAIN_AUTO and sub == PX4_SUB_LOITER:
-            f.hold(self._x)
-            return m2.MAV_RESULT_ACCEPTED, "Hold"
-        if main == PX4_MAIN_AUTO and sub == PX4_SUB_RTL:
-            return self._cmd_rtl(p, link, addr)
-        if main == PX4_MAIN_AUTO and sub == PX4_SUB_LAND:
-            return self._cmd_land(p, link, addr)
-        if main == PX4_MAIN_AUTO and sub == PX4_SUB_TAKEOFF:
-            return self._cmd_takeoff([math.nan] * 7, link, addr)
+        modes: dict[tuple[int, int], c.Command] = {
+            (PX4_MAIN_AUTO, PX4_SUB_MISSION): c.SelectMission(),
+            (PX4_MAIN_AUTO, PX4_SUB_LOITER): c.Hold(),
+            (PX4_MAIN_AUTO, PX4_SUB_RTL): c.ReturnToLaunch(),
+            (PX4_MAIN_AUTO, PX4_SUB_LAND): c.Land(),
+            (PX4_MAIN_AUTO, PX4_SUB_TAKEOFF): c.Takeoff(),
+        }
+        cmd = modes.get((main, sub))
         if main == PX4_MAIN_OFFBOARD:
-            if self.offboard is None or self._t - self.offboard.received_t_s > self.cfg.offboard_timeout_s:
-                return m2.MAV_RESULT_DENIED, "Offboard refused: no setpoint stream"
-            f.mode = Mode.GUIDED
-            return m2.MAV_RESULT_ACCEPTED, "Offboard"
-        return m2.MAV_RESULT_DENIED, f"Mode {main}/{sub} not supported"
+            cmd = c.StartOffboard()
+        if cmd is None:
+            return m2.MAV_RESULT_DENIED, f"Mode {main}/{sub} not supported"
+        return self._fly(cmd)
 
     def _cmd_request_message(self, p: list[float], link: MavlinkUdp, addr: Address) -> tuple[int, str]:
         msg = self.build(int(p[0])) if math.isfinite(p[0]) else None
@@ -571,41 +500,3 @@ class GcsService:
         """A new upload is refused while it cannot be flown; flying one is replaced only
         by the next explicit start (the running trajectory is kept until then)."""
         return check_mission(items, self.cfg.home, self.flight_limits)
-
-    def _mission_progress(self, flight: Flight) -> None:
-        """Report the stored mission's progress while its trajectory is the one flown, up to
-        and including the tick it ends on (the flight has switched to HOLD by then)."""
-        traj = self._mission_traj
-        if traj is None or flight.trajectory is not traj:
-            return
-        tau = self._t - flight.t0_s
-        prev = self._prev_tau if self._prev_tau is not None else -1e-9
-        self._prev_tau = tau
-        out: list[Message] = []
-        for seq in traj.reached_between(prev, tau):
-            out += self.missions.item_reached(seq)
-        active = traj.active_seq(tau)
-        if active is not None and active != self.missions.current_seq:
-            out += self.missions.set_current(active)
-        if tau > traj.duration_s:
-            self._mission_traj = None  # done: every item was reached by now
-            self._mission_done = True
-        self._send_all(out)
-
-    def _offboard_timeout(self, flight: Flight) -> None:
-        if flight.mode is not Mode.GUIDED:
-            return
-        ob = self.offboard
-        if ob is None or self._t - ob.received_t_s > self.cfg.offboard_timeout_s:
-            flight.hold(self._x)
-            self.offboard = None
-            self.statustext(m2.MAV_SEVERITY_WARNING, "Offboard setpoints lost: holding position")
-            return
-        flight.guided_ref = ob.ref_nwu
-
-    def _auto_disarm(self, flight: Flight) -> None:
-        if flight.armed and flight.mode is Mode.LAND and flight.trajectory is not None:
-            tau = self._t - flight.t0_s
-            if tau > flight.trajectory.duration_s and landed(self._x):
-                flight.disarm(self._x)
-                self.statustext(m2.MAV_SEVERITY_INFO, "Landed: disarmed")

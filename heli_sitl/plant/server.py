@@ -16,18 +16,16 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
-from heli_common.mavlink.fast import HilActuatorControls, SimCodec
+from heli_common.links import ServoInput
+from heli_common.mavlink.fast import SimCodec
 from heli_common.mavlink.sim_protocol import (
-    MAV_MODE_FLAG_SAFETY_ARMED,
-    decode_command,
     encode_state,
     period_us,
-    receive,
 )
 from heli_common.mavlink.udp import MavlinkUdp
 from heli_common.servo_map import limits_array
-from heli_sitl.plant.can_endpoint import CanServoEndpoint
 from heli_sitl.plant.model import Plant
+from heli_sitl.plant.servo_inputs import MavlinkServoInput
 
 log = logging.getLogger("heli_sitl.plant.server")
 LOCKSTEP_SPIN_S = 0.002  # poll this long before sleeping (see MavlinkUdp.wait)
@@ -58,23 +56,24 @@ class SimStats:
 
 
 class PlantServer:
-    """``can``: take servo commands from a DroneCAN endpoint instead of HIL_ACTUATOR_CONTROLS
-    (the state still goes out on the MAVLink sim link). CAN commands carry no time stamp:
-    in lockstep the first command applied after a state is published answers that state."""
+    """The state goes out on the MAVLink sim link ``link``; commands come from ``servo_in``
+    (the same link's HIL_ACTUATOR_CONTROLS by default, or DroneCAN). A medium without time
+    stamps stamps a command with the current state's time: in lockstep the first command
+    applied after a state is published answers that state."""
 
     def __init__(
-        self, plant: Plant, link: MavlinkUdp, cfg: SimConfig, can: CanServoEndpoint | None = None
+        self, plant: Plant, link: MavlinkUdp, cfg: SimConfig, servo_in: ServoInput | None = None
     ) -> None:
-        if can is not None and cfg.hold_until_armed:
-            raise ValueError("hold_until_armed needs the MAVLink servo link (CAN has no arming flag)")
+        self.codec = SimCodec(system_id=1, component_id=51)
+        self.limits = limits_array(plant.airframe.limits.as_tuple())
+        self.servo_in: ServoInput = servo_in or MavlinkServoInput(link, self.codec, self.limits)
+        if cfg.hold_until_armed and not self.servo_in.carries_arming:
+            raise ValueError("hold_until_armed needs a servo link that carries the arming state")
         self.plant = plant
         self.link = link
-        self.can = can
         self.cfg = cfg
-        self.limits = limits_array(plant.airframe.limits.as_tuple())
         self.stats = SimStats()
         self.period_us = period_us(cfg.rate_hz)
-        self.codec = SimCodec(system_id=1, component_id=51)
         self.t_us = 0
         self._last_cmd_us = -1
         self._waiting_for_arm = cfg.hold_until_armed
@@ -113,34 +112,13 @@ class PlantServer:
         self.stats.steps += 1
         self.t_us += self.period_us
 
-    def _wait(self, timeout_s: float) -> None:
-        if self.can is None:
-            self.link.wait(timeout_s, spin_s=LOCKSTEP_SPIN_S)
-
-    def _commands(self, wait_s: float = 0.0) -> list[tuple[int, Any, bool]]:
-        if self.can is not None:
-            before = self.can.stats["commands_applied"]
-            held = self.can.poll(time.monotonic(), wait_s=wait_s)
-            if held is None or self.can.stats["commands_applied"] == before:
-                return []
-            return [(self.t_us, held, True)]
-        out = []
-        for msg in receive(self.link, self.codec):
-            if not isinstance(msg, HilActuatorControls):
-                continue
-            cmd = decode_command(msg, self.limits)
-            if cmd is None:
-                self.stats.bad_commands += 1
-                continue
-            out.append((*cmd, bool(msg.mode & MAV_MODE_FLAG_SAFETY_ARMED)))
-        return out
-
     def run(self, stop: threading.Event) -> SimStats:
         gc.freeze()  # start-up objects never need rescanning while the plant runs
         if self.cfg.mode == "lockstep":
             self._run_lockstep(stop)
         else:
             self._run_realtime(stop)
+        self.stats.bad_commands += self.servo_in.refused
         return self.stats
 
     def _run_lockstep(self, stop: threading.Event) -> None:
@@ -148,15 +126,13 @@ class PlantServer:
         self._publish()
         sent_at = last_cmd = time.monotonic()
         while not stop.is_set() and not self._end_reached():
-            wait_s = min(self.cfg.resend_s, 0.05)
-            self._wait(wait_s)
             applied = False
-            for t_us, u, armed in self._commands(wait_s if self.can is not None else 0.0):
-                if t_us != self.t_us:
+            for cmd in self.servo_in.receive(self.t_us, min(self.cfg.resend_s, 0.05)):
+                if cmd.t_us != self.t_us:
                     self.stats.stale_commands += 1
                     continue
                 self.stats.commands += 1
-                if not self._frozen(armed) and not self.plant.set_pitches(u):
+                if not self._frozen(cmd.armed) and not self.plant.set_pitches(cmd.pitches_rad):
                     self.stats.bad_commands += 1
                 applied = True
             now = time.monotonic()
@@ -180,28 +156,25 @@ class PlantServer:
         # The clock starts with the first command, so a vehicle in the air does not fall
         # while the autopilot is starting; until then the state is published at 20 Hz.
         while not stop.is_set():
-            cmds = self._commands()
-            if cmds:
-                t_us, u, _ = cmds[-1]
-                self._last_cmd_us = t_us
-                if not self._frozen(cmds[-1][2]):
-                    self.plant.set_pitches(u)
-                break
             self._publish()
-            self._wait(0.05)
-            if self.can is not None:
-                time.sleep(0.01)
+            cmds = self.servo_in.receive(self.t_us, 0.05)
+            if cmds:
+                first = cmds[-1]
+                self._last_cmd_us = first.t_us
+                if not self._frozen(first.armed):
+                    self.plant.set_pitches(first.pitches_rad)
+                break
         start = time.monotonic()
         last_cmd = start
         k = 0
         while not stop.is_set() and not self._end_reached():
-            for t_us, u, armed in self._commands():
-                if t_us < self._last_cmd_us:
+            for cmd in self.servo_in.receive(self.t_us):
+                if cmd.t_us < self._last_cmd_us:
                     self.stats.stale_commands += 1
                     continue
-                self._last_cmd_us = t_us
+                self._last_cmd_us = cmd.t_us
                 self.stats.commands += 1
-                if not self._frozen(armed) and not self.plant.set_pitches(u):
+                if not self._frozen(cmd.armed) and not self.plant.set_pitches(cmd.pitches_rad):
                     self.stats.bad_commands += 1
                 last_cmd = time.monotonic()
             self._mark_silent(time.monotonic() - last_cmd > self.cfg.timeout_s)

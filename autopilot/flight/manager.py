@@ -1,0 +1,301 @@
+"""The vehicle's flight logic in one place: arming, modes, take-off, landing, return,
+missions, offboard setpoints and the failsafes with their timeouts.
+
+Driven by typed commands (:mod:`autopilot.flight.commands`) from any link, and by the
+runner's ticks: :meth:`FlightManager.pre_tick` before the control law (failsafes that
+change the reference), :meth:`FlightManager.post_tick` after it (mission progress,
+disarm after landing). Clock-free: every call takes the runner's time ``t_s``. What the
+operator should hear about is queued as events (:meth:`take_events`) for whichever link
+reports it.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from autopilot.flight import commands as c
+from autopilot.flight.modes import Flight, Mode, landed
+from autopilot.trajectory.waypoints import FlightLimits, WaypointTrajectory
+from autopilot.trajectory_codec import mission_to_trajectory
+from heli_common.geo import GeoPoint
+from heli_common.mavlink import mission_items as ms
+from heli_common.mavlink.mission_items import MissionItem
+from heli_common.state import POS, FloatArray
+
+DEFAULT_TAKEOFF_ALT_M = 2.5
+TAKEOFF_ALT_RANGE_M = (0.5, 500.0)
+EVENT_QUEUE = 256
+
+
+class MissionState(enum.Enum):
+    NONE = "none"  # no mission flown since start-up (or a new one not started)
+    ACTIVE = "active"
+    COMPLETE = "complete"
+
+
+class LandedState(enum.Enum):
+    ON_GROUND = "on_ground"
+    IN_AIR = "in_air"
+    LANDING = "landing"
+
+
+@dataclass(frozen=True)
+class FlightConfig:
+    home: GeoPoint
+    limits: FlightLimits = FlightLimits()
+    offboard_timeout_s: float = 1.0  # no setpoint for this long in offboard -> hold
+
+
+@dataclass
+class _Offboard:
+    ref_nwu: FloatArray  # pos, vel, acc (NaN where not given)
+    received_t_s: float
+
+
+class FlightManager:
+    """See the module docstring. ``mission()`` returns the stored (accepted) mission."""
+
+    def __init__(self, cfg: FlightConfig, mission: Callable[[], tuple[MissionItem, ...]] = tuple) -> None:
+        self.cfg = cfg
+        self.flight = Flight()
+        self._mission = mission
+        self.offboard_timeout_s = cfg.offboard_timeout_s
+        self.mission_on_arm = False  # mission mode selected while disarmed
+        self._offboard: _Offboard | None = None
+        self._mission_traj: WaypointTrajectory | None = None
+        self._mission_done = False
+        self._prev_tau: float | None = None
+        self._current_seq = 0
+        # bounded: with no link draining it, the oldest events are dropped
+        self._events: deque[c.Event] = deque(maxlen=EVENT_QUEUE)
+        self._t = 0.0
+        self._x: FloatArray = np.zeros(12)
+
+    def set_mission_source(self, mission: Callable[[], tuple[MissionItem, ...]]) -> None:
+        """Where the stored mission lives (the link that runs the mission protocol)."""
+        self._mission = mission
+
+    # -- what the links read -----------------------------------------------------------
+    @property
+    def armed(self) -> bool:
+        return self.flight.armed
+
+    @property
+    def mode(self) -> Mode:
+        """The mode to report: mission mode selected while disarmed shows as AUTO."""
+        return Mode.AUTO if self.mission_on_arm else self.flight.mode
+
+    def armable(self) -> bool:
+        f = self.flight
+        return f.armed or bool(self._mission()) or f.mode is Mode.GUIDED or f.trajectory is not None
+
+    def mission_state(self) -> MissionState:
+        if self._mission_traj is not None:
+            return MissionState.ACTIVE
+        return MissionState.COMPLETE if self._mission_done else MissionState.NONE
+
+    def landed_state(self, x: FloatArray) -> LandedState:
+        if not self.flight.armed or landed(x):
+            return LandedState.ON_GROUND
+        return LandedState.LANDING if self.flight.mode is Mode.LAND else LandedState.IN_AIR
+
+    def take_events(self) -> list[c.Event]:
+        out = list(self._events)
+        self._events.clear()
+        return out
+
+    def _say(self, severity: c.Severity, text: str) -> None:
+        self._events.append(c.Text(severity, text))
+
+    # -- commands ----------------------------------------------------------------------
+    def execute(self, cmd: c.Command, t_s: float, x: FloatArray) -> c.Reply:
+        """Apply one command at time ``t_s`` with the vehicle at ``x`` (between two ticks)."""
+        self._t, self._x = t_s, x
+        handler = self._HANDLERS.get(type(cmd))
+        if handler is None:
+            return c.Reply(c.Result.UNSUPPORTED)
+        reply: c.Reply = handler(self, cmd)
+        return reply
+
+    def _arm(self, cmd: c.Arm) -> c.Reply:
+        f = self.flight
+        mission = self._mission()
+        if not (mission or f.mode is Mode.GUIDED or f.trajectory is not None):
+            return c.Reply(c.Result.DENIED, "Arming refused: no mission or trajectory")
+        f.armed = True
+        if self.mission_on_arm and mission:
+            # mission mode was selected while disarmed (as PX4): it starts now, so the
+            # trajectory's t = 0 is this tick
+            self.mission_on_arm = False
+            reply = self._start_items(list(mission), Mode.AUTO, mission=True)
+            if not reply.accepted:
+                f.armed = False
+                return reply
+            return c.Reply(c.Result.ACCEPTED, "Armed: mission started")
+        if f.mode is not Mode.GUIDED:  # armed in offboard: follow the setpoints at once
+            f.hold(self._x)
+        return c.Reply(c.Result.ACCEPTED, "Armed")
+
+    def _disarm(self, cmd: c.Disarm) -> c.Reply:
+        ok, why = self.flight.disarm(self._x, force=cmd.force)
+        if ok:
+            self.mission_on_arm = False
+        return c.Reply(c.Result.ACCEPTED if ok else c.Result.DENIED, f"Disarm: {why}")
+
+    def _start_items(
+        self, items: list[MissionItem], mode: Mode, start_seq: int = 0, mission: bool = False
+    ) -> c.Reply:
+        """Fly ``items`` from here; ``mission``: they are the stored mission, whose progress
+        (current item, items reached) is reported."""
+        try:
+            traj = mission_to_trajectory(items, self.cfg.home, self._x[POS].tolist(), self.cfg.limits,
+                                         start_seq)  # fmt: skip
+        except ValueError as exc:
+            return c.Reply(c.Result.DENIED, f"Refused: {exc}"[:50])
+        self.flight.start(traj, self._t)
+        self.flight.mode = mode
+        self._prev_tau = None
+        self._current_seq = start_seq
+        self._mission_traj = traj if mission and isinstance(traj, WaypointTrajectory) else None
+        self._mission_done = False
+        return c.Reply(c.Result.ACCEPTED)
+
+    def _start_mission(self, cmd: c.StartMission) -> c.Reply:
+        if not self.flight.armed:
+            return c.Reply(c.Result.DENIED, "Mission start refused: disarmed")
+        mission = self._mission()
+        if not mission:
+            return c.Reply(c.Result.DENIED, "Mission start refused: no mission")
+        first = cmd.first_seq if 0 < cmd.first_seq < len(mission) else 0
+        self._events.append(c.CurrentItem(first))
+        reply = self._start_items(list(mission), Mode.AUTO, first, mission=True)
+        return reply if reply.text else c.Reply(reply.result, "Mission started")
+
+    def _select_mission(self, cmd: c.SelectMission) -> c.Reply:
+        if self.flight.armed:
+            return self._start_mission(c.StartMission())
+        if not self._mission():
+            return c.Reply(c.Result.DENIED, "Mission mode refused: no mission")
+        self.mission_on_arm = True
+        return c.Reply(c.Result.ACCEPTED, "Mission mode: starts when armed")
+
+    def _local_item(self, command: int, z_up_m: float | None = None) -> MissionItem:
+        """An item at the current position in MAV_FRAME_LOCAL_NED (x, y in 1e-4 m)."""
+        pos = self._x[POS]
+        z = -(pos[2] if z_up_m is None else z_up_m)
+        return MissionItem(0, ms.FRAME_LOCAL_NED, command, x=int(round(pos[0] * 1e4)),
+                           y=int(round(-pos[1] * 1e4)), z=z)  # fmt: skip
+
+    def _takeoff(self, cmd: c.Takeoff) -> c.Reply:
+        if not self.flight.armed:
+            return c.Reply(c.Result.DENIED, "Takeoff refused: disarmed")
+        alt = DEFAULT_TAKEOFF_ALT_M if cmd.alt_above_home_m is None else cmd.alt_above_home_m
+        lo, hi = TAKEOFF_ALT_RANGE_M
+        if not (math.isfinite(alt) and lo <= alt <= hi):
+            return c.Reply(c.Result.DENIED, f"Takeoff refused: altitude {alt:.1f} m")
+        reply = self._start_items([self._local_item(ms.CMD_TAKEOFF, alt)], Mode.AUTO)
+        return reply if reply.text else c.Reply(reply.result, f"Takeoff to {alt:.1f} m")
+
+    def _land(self, cmd: c.Land) -> c.Reply:
+        if not self.flight.armed:
+            return c.Reply(c.Result.DENIED, "Land refused: disarmed")
+        reply = self._start_items([self._local_item(ms.CMD_LAND, 0.0)], Mode.LAND)
+        return reply if reply.text else c.Reply(reply.result, "Landing")
+
+    def _rtl(self, cmd: c.ReturnToLaunch) -> c.Reply:
+        if not self.flight.armed:
+            return c.Reply(c.Result.DENIED, "RTL refused: disarmed")
+        item = MissionItem(0, ms.FRAME_MISSION, ms.CMD_RTL)
+        reply = self._start_items([item], Mode.RTL)
+        return reply if reply.text else c.Reply(reply.result, "Returning to launch")
+
+    def _hold(self, cmd: c.Hold) -> c.Reply:
+        self.mission_on_arm = False
+        self.flight.hold(self._x)
+        return c.Reply(c.Result.ACCEPTED, "Hold")
+
+    def _start_offboard(self, cmd: c.StartOffboard) -> c.Reply:
+        ob = self._offboard
+        if ob is None or self._t - ob.received_t_s > self.offboard_timeout_s:
+            return c.Reply(c.Result.DENIED, "Offboard refused: no setpoint stream")
+        self.mission_on_arm = False
+        self.flight.mode = Mode.GUIDED
+        return c.Reply(c.Result.ACCEPTED, "Offboard")
+
+    def _setpoint(self, cmd: c.Setpoint) -> c.Reply:
+        ref = np.asarray(cmd.ref_nwu, dtype=float)
+        if ref.shape != (9,) or np.all(np.isnan(ref[0:3])):
+            # this vehicle follows positions; velocity-only setpoints are not flown
+            return c.Reply(c.Result.DENIED)
+        self._offboard = _Offboard(ref.copy(), self._t)
+        return c.Reply(c.Result.ACCEPTED)
+
+    def _fly_trajectory(self, cmd: c.FlyTrajectory) -> c.Reply:
+        self.flight.start(cmd.trajectory, self._t)
+        return c.Reply(c.Result.ACCEPTED)
+
+    _HANDLERS: dict[type, Callable[[FlightManager, c.Command], c.Reply]] = {
+        c.Arm: _arm,  # type: ignore[dict-item]
+        c.Disarm: _disarm,  # type: ignore[dict-item]
+        c.StartMission: _start_mission,  # type: ignore[dict-item]
+        c.SelectMission: _select_mission,  # type: ignore[dict-item]
+        c.Takeoff: _takeoff,  # type: ignore[dict-item]
+        c.Land: _land,  # type: ignore[dict-item]
+        c.ReturnToLaunch: _rtl,  # type: ignore[dict-item]
+        c.Hold: _hold,  # type: ignore[dict-item]
+        c.StartOffboard: _start_offboard,  # type: ignore[dict-item]
+        c.Setpoint: _setpoint,  # type: ignore[dict-item]
+        c.FlyTrajectory: _fly_trajectory,  # type: ignore[dict-item]
+    }
+
+    # -- the runner's ticks ------------------------------------------------------------
+    def pre_tick(self, t_s: float, x: FloatArray) -> None:
+        """Before the control law: the offboard failsafe (no setpoint -> hold)."""
+        self._t, self._x = t_s, x
+        f = self.flight
+        if f.mode is not Mode.GUIDED:
+            return
+        ob = self._offboard
+        if ob is None or t_s - ob.received_t_s > self.offboard_timeout_s:
+            f.hold(x)
+            self._offboard = None
+            self._say(c.Severity.WARNING, "Offboard setpoints lost: holding position")
+            return
+        f.guided_ref = ob.ref_nwu
+
+    def post_tick(self, t_s: float, x: FloatArray) -> None:
+        """After the control law: mission progress, and disarm once a landing is done."""
+        self._t, self._x = t_s, x
+        self._mission_progress(t_s)
+        f = self.flight
+        if f.armed and f.mode is Mode.LAND and f.trajectory is not None:
+            tau = t_s - f.t0_s
+            if tau > f.trajectory.duration_s and landed(x):
+                f.disarm(x)
+                self._say(c.Severity.INFO, "Landed: disarmed")
+
+    def _mission_progress(self, t_s: float) -> None:
+        """Report the stored mission's progress while its trajectory is the one flown, up to
+        and including the tick it ends on (the flight has switched to HOLD by then)."""
+        traj = self._mission_traj
+        f = self.flight
+        if traj is None or f.trajectory is not traj:
+            return
+        tau = t_s - f.t0_s
+        prev = self._prev_tau if self._prev_tau is not None else -1e-9
+        self._prev_tau = tau
+        for seq in traj.reached_between(prev, tau):
+            self._events.append(c.ItemReached(seq))
+        active = traj.active_seq(tau)
+        if active is not None and active != self._current_seq:
+            self._current_seq = active
+            self._events.append(c.CurrentItem(active))
+        if tau > traj.duration_s:
+            self._mission_traj = None  # done: every item was reached by now
+            self._mission_done = True
