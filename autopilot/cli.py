@@ -25,6 +25,7 @@ from autopilot.runner import Recorder, Runner, RunnerConfig, TickHook
 from autopilot.scenario import Scenario
 from autopilot.tlc.controller import TLController
 from heli_common.config import ConfigError
+from heli_common.defaults import HOME, Exit, ports
 from heli_common.geo import GeoPoint
 from heli_common.links import ServoOutput
 from heli_common.mavlink.udp import LOOPBACK, PortBusyError
@@ -33,6 +34,7 @@ from heli_common.servo_link import add_servo_args, load_servo_link, with_overrid
 from heli_common.servo_map import limits_array
 
 log = logging.getLogger("autopilot")
+PORTS = ports()
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -42,8 +44,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--rate-hz", type=float, default=None, help="control rate (50-1000 Hz)")
     p.add_argument("--feedforward", choices=("pseudo", "exact"), default=None)
     p.add_argument("--duration-s", type=float, default=None, help="stop after this flight time")
-    p.add_argument("--port", type=int, default=4561, help="sim link: UDP port to bind")
-    p.add_argument("--plant-port", type=int, default=4560, help="sim link: the plant's UDP port")
+    p.add_argument("--port", type=int, default=PORTS.autopilot, help="sim link: UDP port to bind")
+    p.add_argument("--plant-port", type=int, default=PORTS.plant, help="sim link: the plant's UDP port")
     p.add_argument("--stale-timeout-s", type=float, default=0.5)
     p.add_argument(
         "--autostart", action="store_true", help="arm and fly the scenario trajectory at once"
@@ -54,13 +56,13 @@ def build_parser() -> argparse.ArgumentParser:
     s = p.add_argument_group("servo link")
     add_servo_args(s)
     s.add_argument("--can-node-id", type=int, default=None, help="DroneCAN node id")
-    g = p.add_argument_group("GCS link (ground stations on 14550, API clients on 14540)")
+    g = p.add_argument_group(f"GCS link (ground stations on {PORTS.gcs}, API clients on {PORTS.api})")
     g.add_argument("--no-gcs", action="store_true", help="no ground-station link")
-    g.add_argument("--gcs-port", type=int, default=14550)
-    g.add_argument("--api-port", type=int, default=14540)
-    g.add_argument("--local-gcs-port", type=int, default=18570, help="our end of the GCS link")
-    g.add_argument("--local-api-port", type=int, default=14580, help="our end of the API link")
-    g.add_argument("--home", default="47.397742,8.545594,488.0",
+    g.add_argument("--gcs-port", type=int, default=PORTS.gcs)
+    g.add_argument("--api-port", type=int, default=PORTS.api)
+    g.add_argument("--local-gcs-port", type=int, default=PORTS.local_gcs, help="our end of the GCS link")
+    g.add_argument("--local-api-port", type=int, default=PORTS.local_api, help="our end of the API link")
+    g.add_argument("--home", default=f"{HOME.lat_deg},{HOME.lon_deg},{HOME.alt_amsl_m}",
                    help="home latitude,longitude [deg],altitude AMSL [m]")
     g.add_argument("--signing-key", default=None,
                    help="file with a 32-byte MAVLink 2 signing key (raw or 64 hex digits)")
@@ -85,13 +87,13 @@ def main(argv: list[str] | None = None) -> int:
         return run(args, stop)
     except ConfigError as exc:
         print(f"heli-autopilot: config error: {exc}", file=sys.stderr)
-        return 2
+        return Exit.USAGE
     except SigningKeyError as exc:
         print(f"heli-autopilot: {exc}", file=sys.stderr)
-        return 2
+        return Exit.USAGE
     except PortBusyError as exc:
         print(f"heli-autopilot: {exc.strerror}", file=sys.stderr)
-        return 3
+        return Exit.PORT_BUSY
 
 
 def parse_home(text: str) -> GeoPoint:

@@ -31,7 +31,8 @@ LOCKSTEP_SPIN_S = 0.002  # poll this long before sleeping (see MavlinkUdp.wait)
 # (t_s, x, ref or None, pitches) -> None: telemetry, logging, GCS services; they run
 # after the tick's command has been sent, so they never delay it
 TickHook = Callable[[float, FloatArray, FloatArray | None, FloatArray], None]
-# (t_s, x) -> None: input services (GCS commands) run before the control law
+# (t_s, x) -> None: input services (GCS commands), run between ticks after the tick
+# hooks, with a bounded budget of their own; what they change applies from the next tick
 InputHook = Callable[[float, FloatArray], None]
 
 
@@ -136,9 +137,12 @@ class Runner:
         self._between.append(fn)
 
     def service(self, t_s: float, x: FloatArray) -> None:
-        """Input services (GCS commands, parameter sets); also run while the plant is quiet."""
+        """Input services (GCS commands, parameter sets), between ticks; also run while
+        the plant is quiet."""
         for hook in self.input_hooks:
             hook(t_s, x)
+
+    def _apply_between(self) -> None:
         while self._between:
             self._between.pop(0)()
 
@@ -146,7 +150,7 @@ class Runner:
         """One control step at ``t_s``; the command goes out (answering the state stamped
         ``t_us``) before the tick hooks run. ``t_us`` None: compute only, send nothing."""
         self._last_t_s, self._last_x = t_s, x
-        self.service(t_s, x)
+        self._apply_between()
         self.manager.pre_tick(t_s, x)
         if self._wall0 is None and self.flight.armed:
             self._wall0 = time.perf_counter()
@@ -169,6 +173,7 @@ class Runner:
         self.manager.post_tick(t_s, x)
         for hook in self.hooks:
             hook(t_s, x, ref, self.u)
+        self.service(t_s, x)
         return self.u
 
     def _done(self, t_s: float) -> bool:

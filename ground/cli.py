@@ -27,11 +27,15 @@ from ground.client import (
 )
 from ground.files import FileFormatError, MissionFile, load_mission
 from ground.log import TlogError, tlog_columns, write_csv
+from heli_common.defaults import Exit, ports
 from heli_common.mavlink.udp import PortBusyError, TlogWriter, mavlink2
 from heli_common.mavlink.wire import SigningKeyError, read_signing_key
 
 PROG = "heli-ground"
 HOME_MISMATCH_M = 1.0  # warn when a file's home is farther than this from the vehicle's
+
+
+PORTS = ports()
 
 
 class UsageError(Exception):
@@ -40,8 +44,9 @@ class UsageError(Exception):
 
 def build_parser() -> argparse.ArgumentParser:
     common = argparse.ArgumentParser(add_help=False)
-    common.add_argument("--gcs-port", type=int, default=14550,
-                        help="UDP port to listen on: where the vehicle sends (default 14550)")
+    common.add_argument("--gcs-port", type=int, default=PORTS.gcs,
+                        help=f"UDP port to listen on: where the vehicle sends (default {PORTS.gcs}; "
+                             f"{PORTS.api} is the vehicle's second link)")
     common.add_argument("--signing-key", type=Path, default=None,
                         help="MAVLink 2 signing key file (32 bytes or 64 hex digits)")
     common.add_argument("--connect-timeout-s", type=float, default=30.0,
@@ -102,13 +107,16 @@ def main(argv: list[str] | None = None) -> int:
         return func(args)
     except (FileFormatError, TlogError, UsageError) as exc:
         print(f"{PROG}: {exc}", file=sys.stderr)
-        return 2
-    except (GroundError, PortBusyError) as exc:
+        return Exit.USAGE
+    except PortBusyError as exc:
+        print(f"{PROG}: {exc.strerror} (another ground station listening? see --gcs-port)", file=sys.stderr)
+        return Exit.PORT_BUSY
+    except GroundError as exc:
         print(f"{PROG}: {exc}", file=sys.stderr)
-        return 1
+        return Exit.FAILURE
     except KeyboardInterrupt:
         print(f"{PROG}: interrupted", file=sys.stderr)
-        return 130
+        return Exit.INTERRUPTED
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -121,10 +129,7 @@ def _client(args: argparse.Namespace, tlog: TlogWriter | None = None) -> GroundC
             key = read_signing_key(args.signing_key)
         except SigningKeyError as exc:  # a missing or malformed key file is bad input
             raise UsageError(str(exc)) from exc
-    try:
-        return GroundClient(args.gcs_port, signing_key=key, tlog=tlog)
-    except PortBusyError as exc:
-        raise GroundError(f"UDP port {args.gcs_port} is busy (another ground station listening?)") from exc
+    return GroundClient(args.gcs_port, signing_key=key, tlog=tlog)
 
 
 def _load(args: argparse.Namespace) -> MissionFile:

@@ -12,7 +12,10 @@ import sys
 from pathlib import Path
 
 from heli_common.config import ConfigError
+from heli_common.defaults import Exit, ports
 from heli_common.servo_link import add_servo_args
+
+PORTS = ports()
 
 
 def _simulate(args: argparse.Namespace) -> int:
@@ -84,7 +87,7 @@ def _run(args: argparse.Namespace) -> int:
                           component_id=51, accept_system=1)  # fmt: skip
     except PortBusyError as exc:
         print(f"heli-sitl: {exc.strerror}", file=sys.stderr)
-        return 3
+        return Exit.PORT_BUSY
     servo = with_overrides(load_servo_link(args.links), args.servo_link, args.can_bus, args.actuator_ids)
     can = None
     servo_in = None
@@ -122,8 +125,8 @@ def _up(args: argparse.Namespace) -> int:
         serve(opts)
     except DemoError as exc:
         print(f"heli-sitl up: {exc}", file=sys.stderr)
-        return 1
-    return 0
+        return Exit.FAILURE
+    return Exit.OK
 
 
 def _demo(args: argparse.Namespace) -> int:
@@ -181,8 +184,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="lockstep: control rate; realtime: physics rate")
     r.add_argument("--plant-substeps", type=int, default=1)
     r.add_argument("--duration-s", type=float, default=None)
-    r.add_argument("--port", type=int, default=4560, help="UDP port to bind")
-    r.add_argument("--autopilot-port", type=int, default=4561)
+    r.add_argument("--port", type=int, default=PORTS.plant, help="UDP port to bind")
+    r.add_argument("--autopilot-port", type=int, default=PORTS.autopilot)
     r.add_argument("--timeout-s", type=float, default=1.0, help="autopilot silent after this")
     add_servo_args(r)
     r.add_argument("--hold-until-armed", action="store_true",
@@ -196,10 +199,10 @@ def build_parser() -> argparse.ArgumentParser:
     u.add_argument("--scenario", default="paper", help="airframe and gains")
     u.add_argument("--in-air", action="store_true",
                    help="start at the scenario's initial state, clock held until armed")
-    u.add_argument("--gcs-port", type=int, default=14550)
-    u.add_argument("--api-port", type=int, default=14540)
-    u.add_argument("--local-gcs-port", type=int, default=18570)
-    u.add_argument("--local-api-port", type=int, default=14580)
+    u.add_argument("--gcs-port", type=int, default=PORTS.gcs)
+    u.add_argument("--api-port", type=int, default=PORTS.api)
+    u.add_argument("--local-gcs-port", type=int, default=PORTS.local_gcs)
+    u.add_argument("--local-api-port", type=int, default=PORTS.local_api)
     u.add_argument("--signing-key", default=None)
     u.add_argument("--out", default=None, help="autopilot writes run.csv/summary/tlog here on exit")
     u.set_defaults(func=_up)
@@ -224,13 +227,13 @@ def main(argv: list[str] | None = None) -> int:
         rc: int = args.func(args)
     except ConfigError as exc:
         print(f"heli-sitl: config error: {exc}", file=sys.stderr)
-        return 2
+        return Exit.USAGE
     except ValueError as exc:
         print(f"heli-sitl: {exc}", file=sys.stderr)
-        return 2
+        return Exit.USAGE
     except KeyboardInterrupt:
         print("heli-sitl: interrupted", file=sys.stderr)
-        return 130
+        return Exit.INTERRUPTED
     return rc
 
 

@@ -13,8 +13,11 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from heli_common.defaults import ports
 from heli_common.mavlink.udp import free_udp_port
 from heli_sitl.children import Child, describe_exit, spawn, stop_all
+
+PORTS = ports()
 
 
 class DemoError(RuntimeError):
@@ -116,10 +119,10 @@ class UpOptions:
     rate_hz: float = 100.0
     scenario: str = "paper"
     in_air: bool = False
-    gcs_port: int = 14550
-    api_port: int = 14540
-    local_gcs_port: int = 18570
-    local_api_port: int = 14580
+    gcs_port: int = PORTS.gcs
+    api_port: int = PORTS.api
+    local_gcs_port: int = PORTS.local_gcs
+    local_api_port: int = PORTS.local_api
     signing_key: str | None = None
     out: str | None = None
     plant_port: int = 0

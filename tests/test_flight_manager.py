@@ -59,6 +59,16 @@ def test_mission_mode_while_disarmed_starts_on_the_arming_tick(mgr: FlightManage
     assert mgr.flight.t0_s == 7.0 and mgr.mission_state() is MissionState.ACTIVE
 
 
+def test_arming_keeps_a_started_trajectory(mgr: FlightManager) -> None:
+    """The scenario's autostart: the trajectory is started, then the vehicle armed."""
+    line = StraightLine(start_nwu_m=(0.0, 0.0, 5.0), vel_nwu_m_s=(1.0, 0.0, 0.0), duration_s=10.0)
+    assert mgr.execute(c.FlyTrajectory(line), 0.0, ON_GROUND).accepted
+    assert mgr.execute(c.Arm(), 0.0, ON_GROUND).accepted
+    assert mgr.mode is Mode.AUTO
+    ref = mgr.flight.reference(2.0, ON_GROUND)
+    assert ref is not None and ref[0] == pytest.approx(2.0) and ref[2] == pytest.approx(5.0)
+
+
 def test_commands_that_need_the_vehicle_armed(mgr: FlightManager) -> None:
     for cmd in (c.Takeoff(), c.Land(), c.ReturnToLaunch(), c.StartMission()):
         assert mgr.execute(cmd, 0.0, ON_GROUND).result is c.Result.DENIED, cmd

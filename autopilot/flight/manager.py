@@ -138,8 +138,8 @@ class FlightManager:
                 f.armed = False
                 return reply
             return c.Reply(c.Result.ACCEPTED, "Armed: mission started")
-        if f.mode is not Mode.GUIDED:  # armed in offboard: follow the setpoints at once
-            f.hold(self._x)
+        if f.mode in (Mode.IDLE, Mode.HOLD):  # hold here; a started trajectory or the
+            f.hold(self._x)  # offboard setpoints are followed from this tick
         return c.Reply(c.Result.ACCEPTED, "Armed")
 
     def _disarm(self, cmd: c.Disarm) -> c.Reply:

@@ -102,6 +102,7 @@ CAPABILITIES = (
     | m2.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
 )
 FORCE_DISARM_MAGIC = 21196
+MAX_DATAGRAMS_PER_POLL = 32  # per link and control tick (3200/s at 100 Hz)
 MAV_RESULT = {
     c.Result.ACCEPTED: m2.MAV_RESULT_ACCEPTED, c.Result.DENIED: m2.MAV_RESULT_DENIED,
     c.Result.UNSUPPORTED: m2.MAV_RESULT_UNSUPPORTED, c.Result.FAILED: m2.MAV_RESULT_FAILED,
@@ -187,10 +188,12 @@ class GcsService:
 
     # -- the runner's hooks ----------------------------------------------------------------
     def poll(self, t_s: float, x: FloatArray) -> None:
-        """Input hook (before the control law): commands, parameters, missions, setpoints."""
+        """Input service, between two ticks: commands, parameters, missions, setpoints."""
         self._t, self._x = t_s, x
         for link in self.links:
-            for msg, addr in link.recv():
+            # bounded: a flooding client costs at most this much per tick; the rest of its
+            # datagrams wait in the socket (and are dropped by the kernel if it overflows)
+            for msg, addr in link.recv(max_datagrams=MAX_DATAGRAMS_PER_POLL):
                 try:
                     self._dispatch(link, addr, msg)
                 except Exception:  # a handler bug must not take the vehicle down

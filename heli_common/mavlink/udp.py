@@ -166,17 +166,22 @@ class MavlinkUdp(Closing):
         r, _, _ = select.select([self.sock], [], [], max(0.0, timeout_s))
         return bool(r)
 
-    def recv(self, timeout_s: float = 0.0, spin_s: float = 0.0) -> list[tuple[Message, Address]]:
-        """Every valid message already queued (waiting up to ``timeout_s`` for the first)."""
-        return [(m, addr) for data, addr in self.recv_datagrams(timeout_s, spin_s)
+    def recv(
+        self, timeout_s: float = 0.0, spin_s: float = 0.0, max_datagrams: int | None = None
+    ) -> list[tuple[Message, Address]]:
+        """Every valid message already queued (waiting up to ``timeout_s`` for the first);
+        at most ``max_datagrams`` datagrams are read, the rest stay queued."""
+        return [(m, addr) for data, addr in self.recv_datagrams(timeout_s, spin_s, max_datagrams)
                 for m in self._parse(data)]  # fmt: skip
 
-    def recv_datagrams(self, timeout_s: float = 0.0, spin_s: float = 0.0) -> list[tuple[bytes, Address]]:
+    def recv_datagrams(
+        self, timeout_s: float = 0.0, spin_s: float = 0.0, max_datagrams: int | None = None
+    ) -> list[tuple[bytes, Address]]:
         """Every datagram already queued, undecoded (for a caller with its own codec)."""
         out: list[tuple[bytes, Address]] = []
         if timeout_s > 0 and not self.wait(timeout_s, spin_s):
             return out
-        while True:
+        while max_datagrams is None or len(out) < max_datagrams:
             try:
                 data, addr = self.sock.recvfrom(65535)
             except (BlockingIOError, InterruptedError):
@@ -188,6 +193,7 @@ class MavlinkUdp(Closing):
             if self.remote is None and addr not in self.peers:
                 self.peers.append(addr)
             out.append((data, addr))
+        return out
 
     def _parse(self, data: bytes) -> list[Message]:
         # Each datagram stands alone: forget any partial bytes a bad datagram left behind.
