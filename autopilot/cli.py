@@ -21,7 +21,7 @@ from autopilot.links.can_servo import CanServoOutput, CanServoSender
 from autopilot.links.mavlink_gcs import GcsConfig, GcsService
 from autopilot.links.mavlink_sim import SimLink
 from autopilot.params_table import ParamTable
-from autopilot.runner import Recorder, Runner, RunnerConfig, TickHook
+from autopilot.runner import Recorder, Runner, RunnerConfig
 from autopilot.scenario import Scenario
 from autopilot.tlc.controller import TLController
 from heli_common.config import ConfigError
@@ -112,15 +112,17 @@ def apply_params(ctrl: TLController, manager: FlightManager, table: ParamTable) 
     manager.offboard_timeout_s = table.failsafe().offboard_timeout_s
 
 
-def make_gcs(args: argparse.Namespace, sc: Scenario, ctrl: TLController, limits: np.ndarray) -> GcsService:
-    home = parse_home(args.home)
+def make_gcs(
+    args: argparse.Namespace, sc: Scenario, ctrl: TLController, manager: FlightManager, limits: np.ndarray
+) -> GcsService:
+    home = manager.cfg.home
     cfg = GcsConfig(
         gcs_port=args.gcs_port, api_port=args.api_port, local_gcs_port=args.local_gcs_port,
         local_api_port=args.local_api_port, home=home,
         signing_key=read_signing_key(args.signing_key) if args.signing_key else None,
     )  # fmt: skip
     table = ParamTable(sc.gains, sc.airframe.limits, ctrl.rate_hz, home=home)
-    return GcsService(cfg, table, lambda _t: None, limits)
+    return GcsService(cfg, table, lambda t: apply_params(ctrl, manager, t), limits, manager=manager)
 
 
 def run(args: argparse.Namespace, stop: threading.Event) -> int:
@@ -140,23 +142,16 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
     out = Path(args.out) if args.out else None
     recorder = Recorder() if out else None
     t0_unix_us = int(time.time() * 1e6)
-    gcs = None if args.no_gcs else make_gcs(args, sc, ctrl, limits)
+    gcs = None if args.no_gcs else make_gcs(args, sc, ctrl, manager, limits)
     servo = with_overrides(load_servo_link(args.links), args.servo_link, args.can_bus, args.actuator_ids)
     can = None
     if servo.link == "can":
         can = CanServoSender(servo.can_bus, node_id=args.can_node_id or servo.node_id,
                              actuator_ids=servo.actuator_ids)  # fmt: skip
-    hooks: list[TickHook] = [] if gcs is None else [gcs]
     try:
         with SimLink((LOOPBACK, args.port), (LOOPBACK, args.plant_port), limits) as sim:
             servo_out: ServoOutput = CanServoOutput(can) if can is not None else sim
-            runner = Runner(ctrl, manager, sim, servo_out, cfg, hooks, recorder,
-                            input_hooks=[gcs.poll] if gcs is not None else [])  # fmt: skip
-            if gcs is not None:
-                gcs.attach(manager)
-                gcs.apply_params = lambda table: runner.between_ticks(
-                    lambda: apply_params(ctrl, manager, table)
-                )
+            runner = Runner(ctrl, manager, sim, servo_out, cfg, [gcs] if gcs else [], recorder)
             stats = runner.run(stop)
             link = sim.udp.stats.as_dict()
             link["out_of_order"] = sim.assembler.out_of_order

@@ -32,7 +32,7 @@ def write_flight_tlog(path: Path, record: FlightRecord, limits: FloatArray, t0_u
         for k, t_s in enumerate(record.t_s):
             t_us = int(round(float(t_s) * 1e6))
             msgs = telemetry.attitude_and_position(t_us, record.x[k])
-            msgs.append(telemetry.position_target(t_us, record.ref[k]))
+            msgs.append(telemetry.position_target(t_us, record.ref[k], float(record.psi_cmd[k])))
             msgs.append(telemetry.servo_output(t_us, record.pitches[k], limits))
             if t_s >= next_hb_s:
                 next_hb_s = float(t_s) + 1.0

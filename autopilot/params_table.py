@@ -48,7 +48,7 @@ import enum
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Any, ClassVar, Literal
+from typing import ClassVar, Literal
 
 from pymavlink.dialects.v20 import common as mavlink
 
@@ -56,10 +56,11 @@ from autopilot.tlc.gains import CommandLimits, DifferentiatorGains, Gains, LoopG
 from heli_common.airframe import PitchLimits
 from heli_common.config import spec
 from heli_common.geo import GeoPoint
-from heli_common.mavlink.udp import addressed_to
+from heli_common.mavlink.udp import (
+    Message,
+    addressed_to,
+)
 from heli_common.mavlink.wire import decode_param, encode_param, f32
-
-Message = Any  # a pymavlink MAVLink_message (pymavlink is untyped)
 
 REAL32: int = mavlink.MAV_PARAM_TYPE_REAL32
 INT32: int = mavlink.MAV_PARAM_TYPE_INT32

@@ -12,28 +12,36 @@ import gc
 import logging
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
 from autopilot.flight.manager import FlightManager
 from autopilot.metrics import FlightRecord
-from autopilot.tlc.controller import N_DIAG, OK, TLController
+from autopilot.tlc.controller import D_PSI_C, N_DIAG, OK, TLController
 from heli_common.links import ServoOutput, StateSource
 from heli_common.mavlink.sim_protocol import StateSample
-from heli_common.state import N_PITCH, FloatArray
+from heli_common.state import N_PITCH, PSI, FloatArray
 
 log = logging.getLogger("autopilot.runner")
 LOCKSTEP_SPIN_S = 0.002  # poll this long before sleeping (see MavlinkUdp.wait)
 
-# (t_s, x, ref or None, pitches) -> None: telemetry, logging, GCS services; they run
-# after the tick's command has been sent, so they never delay it
-TickHook = Callable[[float, FloatArray, FloatArray | None, FloatArray], None]
-# (t_s, x) -> None: input services (GCS commands), run between ticks after the tick
-# hooks, with a bounded budget of their own; what they change applies from the next tick
-InputHook = Callable[[float, FloatArray], None]
+class TickService(Protocol):
+    """A service the runner drives around each control step (the ground-station link)."""
+
+    def at_tick_start(self, t_s: float, x: FloatArray) -> None:
+        """Apply what arrived since the last tick (commands, parameter changes)."""
+
+    def after_tick(
+        self, t_s: float, x: FloatArray, ref: FloatArray | None, u: FloatArray, psi_cmd_rad: float
+    ) -> None:
+        """Report the tick (telemetry, events); runs after the command has been sent."""
+
+    def between_ticks(self, t_s: float, x: FloatArray) -> None:
+        """Receive and parse input, with a bounded budget; also runs while the plant is
+        quiet. Nothing received here changes the vehicle before the next tick starts."""
 
 
 @dataclass(frozen=True)
@@ -94,11 +102,13 @@ class Recorder:
         row[22 + N_PITCH :] = diag
         self.n += 1
 
-    def record(self, wall_s: float, extra: dict[str, Any]) -> FlightRecord:
+    def record(self, wall_s: float, extra: dict[str, Any], pitches: FloatArray | None = None) -> FlightRecord:
+        """The flight so far; ``pitches`` replaces the commanded ones (e.g. the pitches a
+        servo actually applied, one row per tick)."""
         b = self.buf[: self.n]
+        u = b[:, 22 : 22 + N_PITCH].copy() if pitches is None else np.asarray(pitches, dtype=float)
         return FlightRecord.from_ticks(
-            b[:, 0].copy(), b[:, 1:13].copy(), b[:, 13:22].copy(),
-            b[:, 22 : 22 + N_PITCH].copy(), b[:, 22 + N_PITCH :], wall_s, extra,
+            b[:, 0].copy(), b[:, 1:13].copy(), b[:, 13:22].copy(), u, b[:, 22 + N_PITCH :], wall_s, extra,
         )  # fmt: skip
 
 
@@ -107,12 +117,11 @@ class Runner:
         self,
         ctrl: TLController,
         flight: FlightManager,
-        state_in: StateSource,
+        state_in: StateSource | None,
         servo_out: ServoOutput,
         cfg: RunnerConfig,
-        hooks: Sequence[TickHook] | None = None,
+        services: Sequence[TickService] = (),
         recorder: Recorder | None = None,
-        input_hooks: Sequence[InputHook] | None = None,
     ) -> None:
         self.ctrl = ctrl
         self.manager = flight
@@ -120,8 +129,7 @@ class Runner:
         self.state_in = state_in
         self.servo_out = servo_out
         self.cfg = cfg
-        self.hooks = list(hooks or [])
-        self.input_hooks = list(input_hooks or [])
+        self.services = list(services)
         self._last_t_s = 0.0
         self._last_x: FloatArray | None = None
         self.recorder = recorder
@@ -130,27 +138,18 @@ class Runner:
         self.wall_s = 0.0
         self._wall0: float | None = None
         self._t_arm_s = 0.0
-        self._between: list[Callable[[], None]] = []
-
-    def between_ticks(self, fn: Callable[[], None]) -> None:
-        """Run ``fn`` before the next tick (e.g. apply a parameter change)."""
-        self._between.append(fn)
 
     def service(self, t_s: float, x: FloatArray) -> None:
-        """Input services (GCS commands, parameter sets), between ticks; also run while
-        the plant is quiet."""
-        for hook in self.input_hooks:
-            hook(t_s, x)
-
-    def _apply_between(self) -> None:
-        while self._between:
-            self._between.pop(0)()
+        """The services' input, between ticks; also run while the plant is quiet."""
+        for s in self.services:
+            s.between_ticks(t_s, x)
 
     def tick(self, t_s: float, x: FloatArray, t_us: int | None = None) -> FloatArray:
         """One control step at ``t_s``; the command goes out (answering the state stamped
         ``t_us``) before the tick hooks run. ``t_us`` None: compute only, send nothing."""
         self._last_t_s, self._last_x = t_s, x
-        self._apply_between()
+        for s in self.services:
+            s.at_tick_start(t_s, x)
         self.manager.pre_tick(t_s, x)
         if self._wall0 is None and self.flight.armed:
             self._wall0 = time.perf_counter()
@@ -171,8 +170,9 @@ class Runner:
         if t_us is not None:
             self.servo_out.send_pitches(t_us, self.u, self.flight.armed)
         self.manager.post_tick(t_s, x)
-        for hook in self.hooks:
-            hook(t_s, x, ref, self.u)
+        psi_cmd = float(self.ctrl.diag[D_PSI_C]) if ref is not None else float(x[PSI])
+        for s in self.services:
+            s.after_tick(t_s, x, ref, self.u, psi_cmd)
         self.service(t_s, x)
         return self.u
 
@@ -189,21 +189,24 @@ class Runner:
 
     def run(self, stop: threading.Event) -> LoopStats:
         """Fly until stopped or the duration is over; ``wall_s`` counts from the first tick
-        (not the wait for a starting plant)."""
+        (not the wait for a starting plant). Without a state source (an in-process loop
+        that calls :meth:`tick` itself) there is nothing to run."""
+        if self.state_in is None:
+            raise ValueError("Runner.run needs a state source")
         gc.freeze()  # start-up objects (numba, scipy) never need rescanning during the flight
         if self.cfg.mode == "lockstep":
-            self._run_lockstep(stop)
+            self._run_lockstep(stop, self.state_in)
         else:
-            self._run_realtime(stop)
+            self._run_realtime(stop, self.state_in)
         if self._wall0 is not None:
             self.wall_s = time.perf_counter() - self._wall0
         return self.stats
 
-    def _run_lockstep(self, stop: threading.Event) -> None:
+    def _run_lockstep(self, stop: threading.Event, src: StateSource) -> None:
         last_t_us = -1
         last_state = time.monotonic()
         while not stop.is_set():
-            s = self.state_in.latest_state(0.05, spin_s=LOCKSTEP_SPIN_S)
+            s = src.latest_state(0.05, spin_s=LOCKSTEP_SPIN_S)
             now = time.monotonic()
             if s is None:
                 self._stale(now - last_state > self.cfg.stale_timeout_s)
@@ -221,7 +224,7 @@ class Runner:
             self.tick(t_s, s.x, s.t_us)
             last_t_us = s.t_us
 
-    def _run_realtime(self, stop: threading.Event) -> None:
+    def _run_realtime(self, stop: threading.Event, src: StateSource) -> None:
         period = 1.0 / self.cfg.rate_hz
         latest: StateSample | None = None
         latest_at = 0.0
@@ -242,15 +245,15 @@ class Runner:
                 continue
             if late >= period:
                 self.stats.overruns += 1
-            s = self.state_in.latest_state(0.0)
+            s = src.latest_state(0.0)
             if s is not None and (latest is None or s.t_us > latest.t_us):
                 latest, latest_at = s, wake
             elif latest is not None:
                 self.stats.stale_ticks += 1
             if latest is None:  # the plant has not spoken yet: wait for it, clock not started
                 start = time.monotonic()
-                self.state_in.latest_state(0.01)  # keep the socket drained
-                s = self.state_in.latest_state(0.0)
+                src.latest_state(0.01)  # keep the socket drained
+                s = src.latest_state(0.0)
                 if s is not None:
                     latest, latest_at = s, time.monotonic()
                     start = latest_at

@@ -2,15 +2,14 @@
 
 from __future__ import annotations
 
+from autopilot.reference import REF_ACC, REF_POS, REF_VEL
 from heli_common import frames, servo_map
 from heli_common.mavlink.sim_protocol import state_fields
 from heli_common.mavlink.udp import Message, mavlink2
 from heli_common.state import FloatArray
 
-# POSITION_TARGET_LOCAL_NED type_mask: position, velocity and acceleration used; yaw, yaw rate not
-TYPE_MASK_PVA = (
-    mavlink2.POSITION_TARGET_TYPEMASK_YAW_IGNORE | mavlink2.POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE
-)
+# POSITION_TARGET_LOCAL_NED type_mask: position, velocity, acceleration and yaw used; yaw rate not
+TYPE_MASK_PVA_YAW = mavlink2.POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE
 
 
 def attitude_and_position(t_us: int, x: FloatArray) -> list[Message]:
@@ -23,13 +22,15 @@ def attitude_and_position(t_us: int, x: FloatArray) -> list[Message]:
     ]
 
 
-def position_target(t_us: int, ref: FloatArray) -> Message:
-    pos = frames.nwu_to_ned(ref[0:3])
-    vel = frames.nwu_to_ned(ref[3:6])
-    acc = frames.nwu_to_ned(ref[6:9])
+def position_target(t_us: int, ref: FloatArray, psi_cmd_rad: float) -> Message:
+    """The reference (NWU -> NED) and the controller's yaw command (FLU -> FRD)."""
+    pos = frames.nwu_to_ned(ref[REF_POS])
+    vel = frames.nwu_to_ned(ref[REF_VEL])
+    acc = frames.nwu_to_ned(ref[REF_ACC])
     vals = [v if v == v else 0.0 for v in (*pos, *vel, *acc)]  # NaN (unknown) -> 0
+    yaw_frd = frames.euler_flu_to_frd((0.0, 0.0, psi_cmd_rad))[2]
     return mavlink2.MAVLink_position_target_local_ned_message(
-        t_us // 1000, mavlink2.MAV_FRAME_LOCAL_NED, TYPE_MASK_PVA, *vals, 0.0, 0.0
+        t_us // 1000, mavlink2.MAV_FRAME_LOCAL_NED, TYPE_MASK_PVA_YAW, *vals, yaw_frd, 0.0
     )
 
 

@@ -15,19 +15,9 @@ row per LOCAL_POSITION_NED of the vehicle:
   row's time (the reference is smooth; holding it would lag by up to 100 ms, ~0.2 m at
   2 m/s); held for up to :data:`STALE_S` after the last sample; NaN when there is no
   target (disarmed: the vehicle sends none).
-* ``psi_cmd``: POSITION_TARGET_LOCAL_NED.yaw when the vehicle fills it in (a type_mask
-  without POSITION_TARGET_TYPEMASK_YAW_IGNORE). This vehicle does not (yet), so the TLC's
-  yaw command is rebuilt from the commanded path the way autopilot.tlc.controller forms
-  it: when a command stream starts, the path tangent atan2(y', x') if the commanded
-  horizontal speed exceeds the yaw-hold speed, else the measured yaw; then the integral
-  of the path's turn rate (x'y'' - x''y') / (x'^2 + y'^2), zero below the yaw-hold speed
-  (TLC_YAW_HOLD_V from the log's PARAM_VALUE, else the paper gains' 0.05 m/s). That is
-  exact for the exact-feedforward controller on smooth paths (the paper's spiral). With
-  the paper's pseudo-differentiators the controller differentiates the position command
-  itself: at the corner of two rest-to-rest waypoint legs its velocity estimate turns
-  through the corner while the exact path has no curvature, so its yaw command steps by
-  part of the corner angle there, which this rebuild does not show. NaN where there is
-  no command (disarmed).
+* ``psi_cmd``: POSITION_TARGET_LOCAL_NED.yaw, the controller's own yaw command (FRD ->
+  FLU), unwrapped and resampled like the targets; NaN where the vehicle gives none (a
+  type_mask with POSITION_TARGET_TYPEMASK_YAW_IGNORE, or no target: disarmed).
 * ``theta_m, theta_t, eps, eta``: SERVO_OUTPUT_RAW (10 Hz, resampled like the targets)
   mapped back through the inverse of heli_common.servo_map.to_pwm_us with the airframe's
   pitch limits (or the LIM_* parameters seen in the log); the PWM quantum of 1 us is
@@ -58,7 +48,6 @@ __all__ = ["STALE_S", "TlogError", "TlogStats", "TlogWriter", "read_tlog", "tlog
 
 Columns = dict[str, npt.NDArray[np.float64]]
 STALE_S = 0.35  # a 10 Hz message older than this (3.5 periods) is not "the current" one
-DEFAULT_YAW_HOLD_M_S = 0.05  # configs/gains_paper.toml yaw_hold_speed_m_s
 PITCH_PARAMS = (("LIM_TM_MIN", "LIM_TM_MAX"), ("LIM_TT_MIN", "LIM_TT_MAX"),
                 ("LIM_EPS_MIN", "LIM_EPS_MAX"), ("LIM_ETA_MIN", "LIM_ETA_MAX"))  # fmt: skip
 _V1_MAGIC, _V2_MAGIC = 0xFE, 0xFD
@@ -145,8 +134,7 @@ def _streams(path: Path | str, system_id: int, limits0: FloatArray) -> dict[str,
     each moment (the limits can change while disarmed), starting from the airframe's.
     """
     limits = limits0.copy()
-    yaw_hold = DEFAULT_YAW_HOLD_M_S
-    rows: list[list[float]] = []  # t, x, y, z (NWU), phi, theta, psi (FLU), yaw-hold speed
+    rows: list[list[float]] = []  # t, x, y, z (NWU), phi, theta, psi (FLU)
     tgt: list[list[float]] = []  # t, pos, vel, acc (NWU), psi command (NaN: not given)
     srv: list[list[float]] = []  # t, theta_m, theta_t, eps, eta
     last_att: tuple[float, float, float] | None = None
@@ -158,7 +146,7 @@ def _streams(path: Path | str, system_id: int, limits0: FloatArray) -> dict[str,
             # The vehicle sends ATTITUDE and LOCAL_POSITION_NED of one tick together.
             last_att = frames.euler_frd_to_flu((m.roll, m.pitch, m.yaw))
         elif kind == "LOCAL_POSITION_NED" and last_att is not None:
-            rows.append([m.time_boot_ms / 1e3, *frames.ned_to_nwu((m.x, m.y, m.z)), *last_att, yaw_hold])
+            rows.append([m.time_boot_ms / 1e3, *frames.ned_to_nwu((m.x, m.y, m.z)), *last_att])
         elif kind == "POSITION_TARGET_LOCAL_NED":
             yaw_given = not m.type_mask & mavlink2.POSITION_TARGET_TYPEMASK_YAW_IGNORE
             psi = frames.euler_frd_to_flu((0.0, 0.0, m.yaw))[2] if yaw_given else math.nan
@@ -173,15 +161,13 @@ def _streams(path: Path | str, system_id: int, limits0: FloatArray) -> dict[str,
             srv.append([t_s, *servo_map.from_normalized(n, limits)])
         elif kind == "PARAM_VALUE":
             name = str(m.param_id).split("\0", 1)[0]
-            if name == "TLC_YAW_HOLD_V":
-                yaw_hold = float(m.param_value)
             for k, (lo_name, hi_name) in enumerate(PITCH_PARAMS):
                 if name == lo_name:
                     limits[k, 0] = float(m.param_value)
                 elif name == hi_name:
                     limits[k, 1] = float(m.param_value)
     return {
-        "rows": np.array(rows, dtype=float).reshape(-1, 8),
+        "rows": np.array(rows, dtype=float).reshape(-1, 7),
         "target": np.array(tgt, dtype=float).reshape(-1, 11),
         "servo": np.array(srv, dtype=float).reshape(-1, 5),
     }
@@ -213,14 +199,11 @@ def tlog_columns(
     st = _streams(path, system_id, servo_map.limits_array(af.limits.as_tuple()))
     rows, tgt, srv = st["rows"], st["target"], st["servo"]
     t = rows[:, 0]
+    given = ~np.isnan(tgt[:, 10])
+    tgt[given, 10] = np.unwrap(tgt[given, 10])  # a continuous yaw command resamples right
     cmd = _resample(t, tgt[:, 0], tgt[:, 1:])
     pitches = _resample(t, srv[:, 0], srv[:, 1:])
-    yaw = _YawCommand()
-    psi_cmd = np.array([
-        cmd[r, 9] if not math.isnan(cmd[r, 9]) else
-        yaw.at(t[r], None if math.isnan(cmd[r, 0]) else cmd[r], rows[r, 6], rows[r, 7])
-        for r in range(t.size)
-    ])  # fmt: skip
+    psi_cmd = cmd[:, 9]
     cols = {
         "t": t, "x": rows[:, 1], "y": rows[:, 2], "z": rows[:, 3],
         "phi": rows[:, 4], "theta": rows[:, 5], "psi": np.unwrap(rows[:, 6]) if t.size else rows[:, 6],
@@ -235,29 +218,6 @@ def _unwrap_us32(t_us32: int, near_s: float) -> float:
     base = int(near_s * 1e6) - int(near_s * 1e6) % period
     candidates = [base - period + t_us32, base + t_us32, base + period + t_us32]
     return min(candidates, key=lambda c: abs(c - near_s * 1e6)) / 1e6
-
-
-class _YawCommand:
-    """The TLC's yaw command rebuilt from the commanded path (see the module docstring)."""
-
-    def __init__(self) -> None:
-        self.psi: float | None = None
-        self.t = -math.inf
-        self.rate = 0.0
-
-    def at(self, t: float, cmd: npt.NDArray[np.float64] | None, psi_meas: float, hold: float) -> float:
-        if cmd is None:
-            self.psi = None  # no command: the controller is reset (disarmed)
-            return math.nan
-        vx, vy, ax, ay = cmd[3], cmd[4], cmd[6], cmd[7]
-        v2 = vx * vx + vy * vy
-        rate = 0.0 if v2 <= hold * hold or v2 == 0.0 else (vx * ay - ax * vy) / v2
-        if self.psi is None:
-            self.psi = math.atan2(vy, vx) if v2 > hold * hold else psi_meas
-        else:
-            self.psi += 0.5 * (self.rate + rate) * max(0.0, t - self.t)  # trapezoid
-        self.t, self.rate = t, rate
-        return self.psi
 
 
 def write_csv(cols: Columns, path: Path | str) -> None:

@@ -15,12 +15,16 @@ from typing import Any
 
 import numpy as np
 
-from autopilot.links.can_servo import DEFAULT_NODE_ID, CanServoSender
+from autopilot.flight.commands import Arm, FlyTrajectory
+from autopilot.flight.manager import FlightConfig, FlightManager
+from autopilot.links.can_servo import DEFAULT_NODE_ID, CanServoOutput, CanServoSender
 from autopilot.metrics import FlightRecord
+from autopilot.runner import Recorder, Runner, RunnerConfig
 from autopilot.scenario import Scenario
 from autopilot.tlc.controller import TLController
 from heli_common.can.bus import CanBusConfig
 from heli_common.can.dronecan_codec import DEFAULT_ACTUATOR_IDS
+from heli_common.defaults import HOME
 from heli_common.state import N_PITCH, FloatArray
 from heli_sitl.plant.can_endpoint import DEFAULT_TIMEOUT_S, CanServoEndpoint
 from heli_sitl.plant.model import Plant
@@ -52,9 +56,10 @@ def fly_over_can(
     """Fly ``scenario`` with the controller and plant in this process, the pitches going
     over a CAN bus (a fresh python-can ``virtual`` channel unless ``bus`` is given).
 
-    Tick k is at t = k / rate; the controller sees the state at t, the plant holds the
-    pitches it received while it integrates to t + dt (as :func:`heli_sitl.closed_loop.
-    simulate`, but through the sender, the bus and the servo endpoint). ``on_tick(k, t)``
+    Tick k is at t = k / rate: the autopilot's runner ticks on the state at t (the same
+    tick as in the autopilot process), the plant holds the pitches it received while it
+    integrates to t + dt (as :func:`heli_sitl.closed_loop.simulate`, but through the
+    runner, the sender, the bus and the servo endpoint). ``on_tick(k, t)``
     runs after each tick's send (e.g. to spin another node on the bus).
     """
     run = scenario.run
@@ -66,25 +71,26 @@ def fly_over_can(
     plant = Plant(
         scenario.airframe, scenario.initial.state().to_array(), substeps=run.plant_substeps
     )
+    manager = FlightManager(FlightConfig(home=HOME))
+    for cmd in (FlyTrajectory(scenario.trajectory), Arm()):
+        reply = manager.execute(cmd, 0.0, plant.x)
+        assert reply.accepted, reply
     n = round(duration * rate_hz)
-    t = np.arange(n + 1) / rate_hz
-    refs = scenario.trajectory.sample(t)
-    xs = np.empty((n + 1, plant.x.size))
     applied = np.empty((n + 1, N_PITCH))
-    commanded = np.empty((n + 1, N_PITCH))
-    diags = np.empty((n + 1, ctrl.diag.size))
     dt = 1.0 / rate_hz
+    recorder = Recorder(capacity=n + 1)
     # both ends open their own bus on the channel, as two nodes would
     with CanServoEndpoint(
         bus, limits=scenario.airframe.limits, actuator_ids=actuator_ids, timeout_s=timeout_s
     ) as endpoint, CanServoSender(bus, node_id=node_id, actuator_ids=actuator_ids) as sender:
+        # the autopilot's own tick (flight logic, control law, recorder) sends over CAN;
+        # this loop only advances simulation time and the plant
+        runner = Runner(ctrl, manager, None, CanServoOutput(sender), RunnerConfig("lockstep", rate_hz),
+                        recorder=recorder)  # fmt: skip
         wall0 = time.perf_counter()
         for k in range(n + 1):
-            tk = float(t[k])
-            xs[k] = plant.x
-            commanded[k] = ctrl.update(tk, plant.x, refs[k])
-            diags[k] = ctrl.diag
-            sender.send(commanded[k], tk)
+            tk = k / rate_hz
+            runner.tick(tk, plant.x, round(tk * 1e6))
             if on_tick is not None:
                 on_tick(k, tk)
             held = endpoint.poll(tk)
@@ -95,13 +101,11 @@ def fly_over_can(
                 plant.step(dt)
         wall = time.perf_counter() - wall0
         sender_stats, endpoint_stats = dict(sender.stats), dict(endpoint.stats)
-    record = FlightRecord.from_ticks(
-        t, xs, refs, applied, diags, wall,
-        {
-            "rate_hz": rate_hz,
-            "feedforward": ctrl.feedforward.value,
-            "plant_substeps": plant.substeps,
-            "servo_link": f"can {bus.describe()}",
-        },
-    )  # fmt: skip
+    commanded = recorder.buf[: recorder.n, 22 : 22 + N_PITCH].copy()
+    record = recorder.record(wall, {
+        "rate_hz": rate_hz,
+        "feedforward": ctrl.feedforward.value,
+        "plant_substeps": plant.substeps,
+        "servo_link": f"can {bus.describe()}",
+    }, pitches=applied)  # fmt: skip
     return CanFlight(record, commanded, sender_stats, endpoint_stats)

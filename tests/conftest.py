@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 from hypothesis import settings
 
-from autopilot.tlc.controller import N_DIAG, N_REF, TLCConstants, TLController
+from autopilot.reference import N_REF
+from autopilot.tlc.controller import N_DIAG, TLCConstants, TLController
 from autopilot.tlc.gains import Gains
 from heli_common.airframe import Airframe, PlantConstants
 from heli_common.state import N_PITCH, N_STATE, PSI, Z_U, FloatArray

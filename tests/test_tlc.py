@@ -135,7 +135,7 @@ def test_main_rotor_torque_matches_plant(tm: float) -> None:
 
 
 def test_allocation_at_hover_gives_spec_tail_thrust() -> None:
-    """Qc = 0 at hover thrust needs Tt = Qm / lt (spec: 4.9 N) and small cyclic."""
+    """Qc = 0 at hover thrust needs Tt = Qm / lt (about 4.9 N) and small cyclic."""
     qm = main_rotor_torque(MG, _C)
     tt, eps, eta = solve_cyclic_tail(np.zeros(3), MG, qm, _C)
     assert_allclose(tt, 4.85, atol=0.01)

@@ -21,6 +21,7 @@ import numpy as np
 
 from autopilot.flight import commands as c
 from autopilot.flight.modes import Flight, Mode, landed
+from autopilot.reference import N_REF, REF_POS
 from autopilot.trajectory.waypoints import FlightLimits, WaypointTrajectory
 from autopilot.trajectory_codec import mission_to_trajectory
 from heli_common.geo import GeoPoint
@@ -230,7 +231,7 @@ class FlightManager:
 
     def _setpoint(self, cmd: c.Setpoint) -> c.Reply:
         ref = np.asarray(cmd.ref_nwu, dtype=float)
-        if ref.shape != (9,) or np.all(np.isnan(ref[0:3])):
+        if ref.shape != (N_REF,) or np.all(np.isnan(ref[REF_POS])):
             # this vehicle follows positions; velocity-only setpoints are not flown
             return c.Reply(c.Result.DENIED)
         self._offboard = _Offboard(ref.copy(), self._t)

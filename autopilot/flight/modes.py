@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from autopilot.reference import REF_DERIVATIVES, REF_POS, position_reference
 from autopilot.trajectory.base import Trajectory
 from heli_common.state import POS, VEL, FloatArray
 
@@ -39,12 +40,6 @@ class FlightStatus:
 
 def landed(x: FloatArray) -> bool:
     return bool(x[POS][2] < LANDED_ALT_M and np.linalg.norm(x[VEL]) < LANDED_SPEED_M_S)
-
-
-def hold_reference(pos_nwu_m: FloatArray) -> FloatArray:
-    ref = np.zeros(9)
-    ref[0:3] = pos_nwu_m
-    return ref
 
 
 class Flight:
@@ -94,20 +89,20 @@ class Flight:
             if tau <= self.trajectory.duration_s:
                 return self.trajectory.evaluate_row(tau)
             end = self.trajectory.evaluate_row(self.trajectory.duration_s)
-            self.hold_pos = end[0:3].copy()
+            self.hold_pos = end[REF_POS].copy()
             if self.mode is not Mode.LAND:  # a landing holds on the ground until disarmed
                 self.mode = Mode.HOLD
         if self.mode is Mode.GUIDED and self.guided_ref is not None:
             ref = self.guided_ref.copy()
-            ref[3:9] = np.where(np.isnan(ref[3:9]), 0.0, ref[3:9])
+            ref[REF_DERIVATIVES] = np.where(np.isnan(ref[REF_DERIVATIVES]), 0.0, ref[REF_DERIVATIVES])
             return ref
         if self.mode is Mode.IDLE:
             self.hold(x)
-        return hold_reference(self.hold_pos)
+        return position_reference(self.hold_pos)
 
     def hold_integrators(self, x: FloatArray, ref: FloatArray) -> bool:
         """On the ground with the command at or below it, integrating would only wind up."""
-        return landed(x) and ref[2] <= LANDED_ALT_M
+        return landed(x) and ref[REF_POS][2] <= LANDED_ALT_M
 
     def status(self, t_s: float, x: FloatArray) -> FlightStatus:
         tau = t_s - self.t0_s if self.mode in FOLLOWING else None

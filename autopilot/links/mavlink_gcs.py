@@ -131,6 +131,18 @@ class GcsConfig:
     rates_hz: dict[int, float] = field(default_factory=lambda: dict(DEFAULT_RATES_HZ))
 
 
+# a command's answer now (MAV_RESULT, operator text), or a flight command for the next tick
+Answer = tuple[int, str] | c.Command
+
+
+@dataclass
+class _Pending:
+    command: c.Command
+    link: MavlinkUdp | None = None  # where the ACK goes (None: nothing to answer)
+    addr: Address | None = None
+    msg: Message | None = None
+
+
 class GcsService:
     """Owns the two GCS sockets and translates MAVLink to the flight manager's commands and
     its replies and events back; call it once per control tick (runner hooks)."""
@@ -142,6 +154,7 @@ class GcsService:
         apply_params: Callable[[ParamTable], None],
         limits: FloatArray,
         flight_limits: FlightLimits | None = None,
+        manager: FlightManager | None = None,
     ) -> None:
         self.cfg = cfg
         self.params = params
@@ -167,9 +180,14 @@ class GcsService:
         self._x: FloatArray = np.zeros(12)
         self._ref: FloatArray | None = None
         self._u: FloatArray = np.zeros(4)
+        self._psi_cmd = 0.0
         self._broken: set[int] = set()
         self._errors = RateLimitedLog(log, interval_s=10.0)
         self.handler_errors = 0
+        self._pending: list[_Pending] = []
+        self._params_changed = False
+        if manager is not None:
+            self.attach(manager)
 
     def attach(self, manager: FlightManager) -> None:
         """Serve this vehicle's flight manager (it reads the stored mission from us)."""
@@ -187,8 +205,9 @@ class GcsService:
         return out
 
     # -- the runner's hooks ----------------------------------------------------------------
-    def poll(self, t_s: float, x: FloatArray) -> None:
-        """Input service, between two ticks: commands, parameters, missions, setpoints."""
+    def between_ticks(self, t_s: float, x: FloatArray) -> None:
+        """Input, between two ticks: commands, parameters, missions, setpoints (what
+        changes the vehicle is queued for the next tick's start)."""
         self._t, self._x = t_s, x
         for link in self.links:
             # bounded: a flooding client costs at most this much per tick; the rest of its
@@ -200,9 +219,11 @@ class GcsService:
                     self._handler_error(msg.get_type())
         self._send_all(self.missions.tick(t_s))
 
-    def __call__(self, t_s: float, x: FloatArray, ref: FloatArray | None, u: FloatArray) -> None:
-        """Tick hook (after the control law): the flight's events, and telemetry."""
-        self._t, self._x, self._ref, self._u = t_s, x, ref, u
+    def after_tick(
+        self, t_s: float, x: FloatArray, ref: FloatArray | None, u: FloatArray, psi_cmd_rad: float
+    ) -> None:
+        """After the command was sent: the flight's events, and telemetry."""
+        self._t, self._x, self._ref, self._u, self._psi_cmd = t_s, x, ref, u, psi_cmd_rad
         self._report_events()
         self._telemetry()
 
@@ -309,7 +330,9 @@ class GcsService:
             landed = mgr.landed_state(x) if mgr else LandedState.ON_GROUND
             return m2.MAVLink_extended_sys_state_message(m2.MAV_VTOL_STATE_UNDEFINED, LANDED_STATE[landed])
         if msg_id == m2.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED:
-            return telemetry.position_target(t_us, self._ref) if self._ref is not None else None
+            if self._ref is None:
+                return None
+            return telemetry.position_target(t_us, self._ref, self._psi_cmd)
         if msg_id == m2.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW:
             return telemetry.servo_output(t_us, self._u, self.limits)
         if msg_id == m2.MAVLINK_MSG_ID_MISSION_CURRENT:
@@ -351,8 +374,8 @@ class GcsService:
         before = {s.name: self.params.get(s.name) for s in self.params.specs}
         out = self.params.handle(msg, armed=armed)
         changed = any(self.params.get(n) != v for n, v in before.items())
-        if changed:
-            self.apply_params(self.params)
+        if changed:  # applied at the next tick's start, between two control steps
+            self._params_changed = True
         if msg.get_type() == "PARAM_SET" and changed:
             self._send_all(out)  # every GCS learns of a change
         elif out:
@@ -375,8 +398,7 @@ class GcsService:
                     self.refused += 1
                     return
                 ref[off : off + 3] = (vals[0], -vals[1], -vals[2])  # NED -> NWU
-        if not self._execute(c.Setpoint(ref)).accepted:
-            self.refused += 1  # this vehicle follows positions; velocity-only is not flown
+        self._pending.append(_Pending(c.Setpoint(ref)))
 
     # -- commands -------------------------------------------------------------------------
     def _ack(self, link: MavlinkUdp, addr: Address, msg: Message, result: int) -> None:
@@ -398,10 +420,16 @@ class GcsService:
             self._ack(link, addr, msg, m2.MAV_RESULT_UNSUPPORTED)
             return
         try:
-            result, text = handler(self, p, link, addr)
+            answer = handler(self, p, link, addr)
         except Exception:  # every command gets its one ACK, whatever went wrong
             self._handler_error(f"command {cmd}")
-            result, text = m2.MAV_RESULT_FAILED, ""
+            answer = m2.MAV_RESULT_FAILED, ""
+        if isinstance(answer, tuple):
+            self._answer(link, addr, msg, *answer)
+        else:  # a flight command: executed at the start of the next tick, then answered
+            self._pending.append(_Pending(answer, link, addr, msg))
+
+    def _answer(self, link: MavlinkUdp, addr: Address, msg: Message, result: int, text: str) -> None:
         if text:
             self.statustext(
                 m2.MAV_SEVERITY_INFO if result == m2.MAV_RESULT_ACCEPTED else m2.MAV_SEVERITY_WARNING,
@@ -409,37 +437,58 @@ class GcsService:
             )
         self._ack(link, addr, msg, result)
 
+    def at_tick_start(self, t_s: float, x: FloatArray) -> None:
+        """Tick-start hook: the flight commands received since the last tick go to the flight
+        manager with this tick's time and state (a take-off's trajectory starts at this
+        tick), and each gets its ACK."""
+        self._t, self._x = t_s, x
+        if self._params_changed:
+            self._params_changed = False
+            self.apply_params(self.params)
+        pending, self._pending = self._pending, []
+        for p in pending:
+            try:
+                reply = self._execute(p.command)
+            except Exception:
+                self._handler_error(f"flight command {type(p.command).__name__}")
+                reply = c.Reply(c.Result.FAILED)
+            if p.msg is None:  # a setpoint: no answer on the wire
+                if not reply.accepted:
+                    self.refused += 1  # this vehicle follows positions; velocity-only is not flown
+                continue
+            assert p.link is not None and p.addr is not None
+            self._answer(p.link, p.addr, p.msg, MAV_RESULT[reply.result], reply.text)
+
     def _execute(self, cmd: c.Command) -> c.Reply:
         if self.manager is None:
             return c.Reply(c.Result.FAILED, "Not ready")
         return self.manager.execute(cmd, self._t, self._x)
 
-    def _fly(self, cmd: c.Command) -> tuple[int, str]:
-        reply = self._execute(cmd)
-        return MAV_RESULT[reply.result], reply.text
+    def _fly(self, cmd: c.Command) -> c.Command:
+        return cmd
 
-    def _cmd_arm(self, p: list[float], link: MavlinkUdp, addr: Address) -> tuple[int, str]:
+    def _cmd_arm(self, p: list[float], link: MavlinkUdp, addr: Address) -> Answer:
         if p[0] == 1.0:
             return self._fly(c.Arm())
         if p[0] == 0.0:
             return self._fly(c.Disarm(force=p[1] == FORCE_DISARM_MAGIC))
         return m2.MAV_RESULT_DENIED, "Arm: param1 must be 0 or 1"
 
-    def _cmd_mission_start(self, p: list[float], link: MavlinkUdp, addr: Address) -> tuple[int, str]:
+    def _cmd_mission_start(self, p: list[float], link: MavlinkUdp, addr: Address) -> Answer:
         first = int(p[0]) if math.isfinite(p[0]) and 0 < p[0] < 65536 else 0
         return self._fly(c.StartMission(first))
 
-    def _cmd_takeoff(self, p: list[float], link: MavlinkUdp, addr: Address) -> tuple[int, str]:
+    def _cmd_takeoff(self, p: list[float], link: MavlinkUdp, addr: Address) -> Answer:
         alt = p[6] - self.cfg.home.alt_amsl_m if math.isfinite(p[6]) else None
         return self._fly(c.Takeoff(alt))
 
-    def _cmd_land(self, p: list[float], link: MavlinkUdp, addr: Address) -> tuple[int, str]:
+    def _cmd_land(self, p: list[float], link: MavlinkUdp, addr: Address) -> Answer:
         return self._fly(c.Land())
 
-    def _cmd_rtl(self, p: list[float], link: MavlinkUdp, addr: Address) -> tuple[int, str]:
+    def _cmd_rtl(self, p: list[float], link: MavlinkUdp, addr: Address) -> Answer:
         return self._fly(c.ReturnToLaunch())
 
-    def _cmd_set_mode(self, p: list[float], link: MavlinkUdp, addr: Address) -> tuple[int, str]:
+    def _cmd_set_mode(self, p: list[float], link: MavlinkUdp, addr: Address) -> Answer:
         main, sub = int(p[1]) if math.isfinite(p[1]) else -1, int(p[2]) if math.isfinite(p[2]) else 0
         modes: dict[tuple[int, int], c.Command] = {
             (PX4_MAIN_AUTO, PX4_SUB_MISSION): c.SelectMission(),
@@ -486,7 +535,7 @@ class GcsService:
         self.next_due[msg_id] = self._t
         return m2.MAV_RESULT_ACCEPTED, ""
 
-    _COMMANDS: dict[int, Callable[[GcsService, list[float], MavlinkUdp, Address], tuple[int, str]]] = {
+    _COMMANDS: dict[int, Callable[[GcsService, list[float], MavlinkUdp, Address], Answer]] = {
         m2.MAV_CMD_COMPONENT_ARM_DISARM: _cmd_arm,
         m2.MAV_CMD_MISSION_START: _cmd_mission_start,
         m2.MAV_CMD_NAV_TAKEOFF: _cmd_takeoff,

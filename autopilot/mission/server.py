@@ -85,10 +85,9 @@ from heli_common.mavlink.mission_items import (
     UINT16_MAX,
     UNSUPPORTED,
     ItemError,
-    Message,
     MissionItem,
 )
-from heli_common.mavlink.udp import addressed_to
+from heli_common.mavlink.udp import Message, addressed_to
 
 MissionCheck = Callable[[tuple[MissionItem, ...]], int]
 SetCurrentCheck = Callable[[int], bool]

@@ -14,6 +14,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from autopilot.reference import N_REF
 from autopilot.tlc.allocation import clip, main_rotor_torque, solve_cyclic_tail
 from autopilot.tlc.differentiator import DiffCoeffs, diff_reset, diff_step, discretize
 from autopilot.tlc.gains import Gains
@@ -27,7 +28,6 @@ from heli_common.state import EULER, N_PITCH, N_STATE, OMEGA, POS, VEL, FloatArr
 
 # reference vector (earth NWU): commanded position and, where known, its derivatives
 REF_POS, REF_VEL, REF_ACC = 0, 3, 6
-N_REF = 9
 
 # controller state layout
 S_I1, S_I2, S_I3, S_I4 = 0, 3, 6, 9  # error integrals of loops 1-4

@@ -8,22 +8,12 @@ not known (the controller then relies on its pseudo-differentiators).
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
 
+from autopilot.reference import Reference
 from heli_common.state import FloatArray
-
-
-@dataclass(frozen=True)
-class Reference:
-    pos_nwu_m: FloatArray
-    vel_nwu_m_s: FloatArray
-    acc_nwu_m_s2: FloatArray
-
-    def as_array(self) -> FloatArray:
-        return np.concatenate([self.pos_nwu_m, self.vel_nwu_m_s, self.acc_nwu_m_s2])
 
 
 class Trajectory(ABC):
@@ -42,8 +32,7 @@ class Trajectory(ABC):
         return row
 
     def evaluate(self, t_s: float) -> Reference:
-        row = self.sample(np.array([t_s]))[0]
-        return Reference(row[0:3], row[3:6], row[6:9])
+        return Reference.from_row(self.sample(np.array([t_s]))[0])
 
     def initial_heading_rad(self) -> float | None:
         """Heading of the initial tangent, atan2(y'(0), x'(0)), if the trajectory knows it."""

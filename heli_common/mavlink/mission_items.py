@@ -14,14 +14,12 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
 from heli_common.geo import GeoPoint, geo_to_ned_m
+from heli_common.mavlink.udp import Message
 from heli_common.mavlink.wire import f32
-
-Message = Any  # a pymavlink MAVLink_message (pymavlink is untyped)
 
 # MAV_MISSION_RESULT codes, named once so the rest of the module reads as the spec.
 ACCEPTED: int = mavlink.MAV_MISSION_ACCEPTED

@@ -11,7 +11,7 @@ limits (:mod:`heli_common.servo_map`), and ``mode`` carries MAV_MODE_FLAG_SAFETY
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 
@@ -83,18 +83,26 @@ class StateSample:
     x: FloatArray  # NWU/FLU plant state layout
 
 
+class SimMessage(Protocol):
+    """A decoded sim-link message: pymavlink's, or the fast codec's (the same field names;
+    read after ``get_type`` says which message it is)."""
+
+    def get_type(self) -> str: ...
+
+
 class StateAssembler:
     """Collects the three state messages of one step; yields a state when all three agree."""
 
     def __init__(self) -> None:
         self._t_us: int | None = None
-        self._att: Message | None = None
-        self._lpn: Message | None = None
+        self._att: Any = None  # the ATTITUDE of the step being assembled
+        self._lpn: Any = None
         self.last_t_us = -1
         self.out_of_order = 0
 
-    def feed(self, msg: Message) -> StateSample | None:
-        kind = msg.get_type()
+    def feed(self, message: SimMessage) -> StateSample | None:
+        kind = message.get_type()
+        msg: Any = message  # its fields, by name
         if kind == "HIL_STATE_QUATERNION":
             self._t_us = int(msg.time_usec)
         elif kind == "ATTITUDE":
@@ -133,10 +141,11 @@ def command_message(t_us: int, pitches_rad: FloatArray, limits: FloatArray, arme
     return mavlink2.MAVLink_hil_actuator_controls_message(t_us, controls, mode, 0)
 
 
-def decode_command(msg: Message, limits: FloatArray) -> tuple[int, FloatArray] | None:
+def decode_command(message: SimMessage, limits: FloatArray) -> tuple[int, FloatArray] | None:
     """(time_usec, pitches [rad]) or None if it is not a usable command (NaN, |n| > 1)."""
-    if msg.get_type() != "HIL_ACTUATOR_CONTROLS":
+    if message.get_type() != "HIL_ACTUATOR_CONTROLS":
         return None
+    msg: Any = message
     n = np.array(msg.controls[:N_PITCH], dtype=float)
     if not np.all(np.isfinite(n)) or np.any(np.abs(n) > 1.0 + 1e-6):
         return None

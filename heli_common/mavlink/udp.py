@@ -17,7 +17,7 @@ import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, BinaryIO, TypeAlias
+from typing import Any, BinaryIO, Protocol
 
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import common as mavlink2
@@ -31,7 +31,19 @@ __all__ = [
 
 Address = tuple[str, int]
 MAVLink = mavlink2.MAVLink
-Message: TypeAlias = Any  # a pymavlink MAVLink_message (pymavlink ships no type information)
+class Message(Protocol):
+    """A pymavlink MAVLink_message as this project uses it. pymavlink ships no type
+    information; this names the methods we call, so a typo in one is a mypy error. Fields
+    are read by name (``msg.param1``) and typed Any: the handlers validate what they use."""
+
+    def get_type(self) -> str: ...
+    def get_srcSystem(self) -> int: ...
+    def get_srcComponent(self) -> int: ...
+    def get_msgId(self) -> int: ...
+    def get_msgbuf(self) -> bytearray: ...
+    def get_fieldnames(self) -> list[str]: ...
+    def pack(self, mav: Any) -> bytes: ...
+    def __getattr__(self, name: str) -> Any: ...
 LOOPBACK = "127.0.0.1"
 
 
@@ -255,10 +267,9 @@ class TlogWriter(Closing):
 
     def write(self, t_unix_us: int, msgs: Iterable[Message]) -> None:
         for m in msgs:
-            buf = m.get_msgbuf()  # received messages keep their wire bytes; new ones are empty
-            if not buf:
-                buf = m.pack(self.mav)
-            self.fh.write(struct.pack(">Q", t_unix_us) + bytes(buf))
+            # received messages keep their wire bytes; new ones are empty
+            buf = bytes(m.get_msgbuf()) or m.pack(self.mav)
+            self.fh.write(struct.pack(">Q", t_unix_us) + buf)
 
     def close(self) -> None:
         self.fh.close()

@@ -1,0 +1,45 @@
+"""The reference the controller follows, named once: what a trajectory evaluates to, what
+the flight modes hand the controller, what telemetry reports.
+
+As a flat 9-vector (the compiled kernels' layout): ``REF_POS``, ``REF_VEL``, ``REF_ACC``,
+earth NWU, SI units; NaN in a derivative means "not known" (the controller's
+pseudo-differentiators estimate it). The yaw command is not part of it: the controller
+forms it from the path's heading (yaw augmentation) and reports it beside the pitches.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from heli_common.state import FloatArray
+
+N_REF = 9
+REF_POS = slice(0, 3)  # [m]
+REF_VEL = slice(3, 6)  # [m/s]
+REF_ACC = slice(6, 9)  # [m/s^2]
+REF_DERIVATIVES = slice(3, 9)
+
+
+@dataclass(frozen=True)
+class Reference:
+    """One reference, with named fields (the 9-vector's readable form)."""
+
+    pos_nwu_m: FloatArray
+    vel_nwu_m_s: FloatArray
+    acc_nwu_m_s2: FloatArray
+
+    @classmethod
+    def from_row(cls, row: FloatArray) -> Reference:
+        return cls(row[REF_POS], row[REF_VEL], row[REF_ACC])
+
+    def as_array(self) -> FloatArray:
+        return np.concatenate([self.pos_nwu_m, self.vel_nwu_m_s, self.acc_nwu_m_s2])
+
+
+def position_reference(pos_nwu_m: FloatArray) -> FloatArray:
+    """Hold ``pos_nwu_m``: zero velocity and acceleration."""
+    ref = np.zeros(N_REF)
+    ref[REF_POS] = pos_nwu_m
+    return ref
