@@ -25,11 +25,12 @@ from autopilot.runner import Recorder, Runner, RunnerConfig
 from autopilot.scenario import Scenario
 from autopilot.tlc.controller import TLController
 from heli_common.config import ConfigError
-from heli_common.defaults import HOME, Exit, ports
+from heli_common.defaults import HOME, ports
 from heli_common.geo import GeoPoint
 from heli_common.links import ServoOutput
-from heli_common.mavlink.udp import LOOPBACK, PortBusyError
-from heli_common.mavlink.wire import SigningKeyError, read_signing_key
+from heli_common.mavlink.udp import LOOPBACK
+from heli_common.mavlink.wire import read_signing_key
+from heli_common.process import run_main
 from heli_common.servo_link import add_servo_args, load_servo_link, with_overrides
 from heli_common.servo_map import limits_array
 
@@ -83,17 +84,7 @@ def main(argv: list[str] | None = None) -> int:
 
     signal.signal(signal.SIGTERM, on_signal)
     signal.signal(signal.SIGINT, on_signal)
-    try:
-        return run(args, stop)
-    except ConfigError as exc:
-        print(f"heli-autopilot: config error: {exc}", file=sys.stderr)
-        return Exit.USAGE
-    except SigningKeyError as exc:
-        print(f"heli-autopilot: {exc}", file=sys.stderr)
-        return Exit.USAGE
-    except PortBusyError as exc:
-        print(f"heli-autopilot: {exc.strerror}", file=sys.stderr)
-        return Exit.PORT_BUSY
+    return run_main("heli-autopilot", lambda: run(args, stop))
 
 
 def parse_home(text: str) -> GeoPoint:

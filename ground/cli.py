@@ -27,9 +27,10 @@ from ground.client import (
 )
 from ground.files import FileFormatError, MissionFile, load_mission
 from ground.log import TlogError, tlog_columns, write_csv
-from heli_common.defaults import Exit, ports
-from heli_common.mavlink.udp import PortBusyError, TlogWriter, mavlink2
+from heli_common.defaults import ports
+from heli_common.mavlink.udp import TlogWriter, mavlink2
 from heli_common.mavlink.wire import SigningKeyError, read_signing_key
+from heli_common.process import run_main
 
 PROG = "heli-ground"
 HOME_MISMATCH_M = 1.0  # warn when a file's home is farther than this from the vehicle's
@@ -103,20 +104,8 @@ def main(argv: list[str] | None = None) -> int:
 
         terminate_on_sigterm()
     func: Callable[[argparse.Namespace], int] = args.func
-    try:
-        return func(args)
-    except (FileFormatError, TlogError, UsageError) as exc:
-        print(f"{PROG}: {exc}", file=sys.stderr)
-        return Exit.USAGE
-    except PortBusyError as exc:
-        print(f"{PROG}: {exc.strerror} (another ground station listening? see --gcs-port)", file=sys.stderr)
-        return Exit.PORT_BUSY
-    except GroundError as exc:
-        print(f"{PROG}: {exc}", file=sys.stderr)
-        return Exit.FAILURE
-    except KeyboardInterrupt:
-        print(f"{PROG}: interrupted", file=sys.stderr)
-        return Exit.INTERRUPTED
+    return run_main(PROG, lambda: func(args), usage=(FileFormatError, TlogError, UsageError),
+                    failure=(GroundError,), port_hint=" (another ground station listening? see --gcs-port)")
 
 
 # ----------------------------------------------------------------------------- helpers

@@ -45,34 +45,10 @@ def plot_figures(cols: Cols, out_dir: Path, title: str = "") -> list[Path]:
     fig.savefig(paths[0], dpi=110)
     plt.close(fig)
 
-    fig, axs = plt.subplots(4, 1, figsize=(8, 9), sharex=True)
-    for a, key, unit in zip(
-        axs, ("x", "y", "z", "psi"), ("m", "m", "m", "rad"), strict=True
-    ):
-        a.plot(t, cols[f"{key}_cmd"], "k--", lw=1, label="command")
-        a.plot(t, cols[key], "b", lw=1.1, label="actual")
-        a.set_ylabel(f"{key} [{unit}]")
-        a.grid(alpha=0.3)
-    axs[0].legend(loc="upper right")
-    axs[0].set_title(f"Fig. 6: position and yaw vs command{suffix}")
-    axs[-1].set_xlabel("t [s]")
-    fig.tight_layout()
-    fig.savefig(paths[1], dpi=110)
-    plt.close(fig)
-
-    fig, axs = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
-    for a, key in zip(axs, ("phi", "theta"), strict=True):
-        if f"{key}_cmd" in cols:
-            a.plot(t, cols[f"{key}_cmd"], "k--", lw=1, label="command")
-        a.plot(t, cols[key], "b", lw=1.1, label="actual")
-        a.set_ylabel(f"{key} [rad]")
-        a.grid(alpha=0.3)
-    axs[0].legend(loc="upper right")
-    axs[0].set_title(f"Fig. 7: roll and pitch (FLU){suffix}")
-    axs[-1].set_xlabel("t [s]")
-    fig.tight_layout()
-    fig.savefig(paths[2], dpi=110)
-    plt.close(fig)
+    _tracking_panels(paths[1], cols, (("x", "m"), ("y", "m"), ("z", "m"), ("psi", "rad")),
+                     f"Fig. 6: position and yaw vs command{suffix}", (8, 9))
+    _tracking_panels(paths[2], cols, (("phi", "rad"), ("theta", "rad")),
+                     f"Fig. 7: roll and pitch (FLU){suffix}", (8, 6))
 
     fig, axs = plt.subplots(4, 1, figsize=(8, 9), sharex=True)
     labels = {
@@ -92,3 +68,23 @@ def plot_figures(cols: Cols, out_dir: Path, title: str = "") -> list[Path]:
     fig.savefig(paths[3], dpi=110)
     plt.close(fig)
     return paths
+
+
+def _tracking_panels(
+    path: Path, cols: Cols, keys: tuple[tuple[str, str], ...], title: str, size: tuple[float, float]
+) -> None:
+    """One panel per (column, unit) against time: the command (dashed) where there is one."""
+    t = cols["t"]
+    fig, axs = plt.subplots(len(keys), 1, figsize=size, sharex=True)
+    for a, (key, unit) in zip(axs, keys, strict=True):
+        if f"{key}_cmd" in cols:
+            a.plot(t, cols[f"{key}_cmd"], "k--", lw=1, label="command")
+        a.plot(t, cols[key], "b", lw=1.1, label="actual")
+        a.set_ylabel(f"{key} [{unit}]")
+        a.grid(alpha=0.3)
+    axs[0].legend(loc="upper right")
+    axs[0].set_title(title)
+    axs[-1].set_xlabel("t [s]")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

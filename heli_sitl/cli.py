@@ -11,8 +11,8 @@ import json
 import sys
 from pathlib import Path
 
-from heli_common.config import ConfigError
 from heli_common.defaults import Exit, ports
+from heli_common.process import run_main
 from heli_common.servo_link import add_servo_args
 
 PORTS = ports()
@@ -223,18 +223,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    try:
-        rc: int = args.func(args)
-    except ConfigError as exc:
-        print(f"heli-sitl: config error: {exc}", file=sys.stderr)
-        return Exit.USAGE
-    except ValueError as exc:
-        print(f"heli-sitl: {exc}", file=sys.stderr)
-        return Exit.USAGE
-    except KeyboardInterrupt:
-        print("heli-sitl: interrupted", file=sys.stderr)
-        return Exit.INTERRUPTED
-    return rc
+    return run_main("heli-sitl", lambda: int(args.func(args)), usage=(ValueError,))
 
 
 if __name__ == "__main__":

@@ -287,14 +287,17 @@ class MissionServer:
         self._last_done = _Done(partner, up.count, result)
         return [self._ack(partner, result, TYPE_MISSION)]
 
+    def _stored(self, mission_type: int) -> tuple[MissionItem, ...] | None:
+        """What is stored for ``mission_type``: fence and rally are empty; None: no such type."""
+        if mission_type == TYPE_MISSION:
+            return self._mission
+        return () if mission_type in EMPTY_TYPES else None
+
     def _on_request_list(self, msg: Message, now_s: float) -> list[Message]:
         partner = _partner(msg)
         mtype = int(getattr(msg, "mission_type", TYPE_MISSION))
-        if mtype == TYPE_MISSION:
-            items = self._mission
-        elif mtype in EMPTY_TYPES:
-            items = ()
-        else:
+        items = self._stored(mtype)
+        if items is None:
             return [self._ack(partner, UNSUPPORTED, mtype)]
         self._downloads[(partner, mtype)] = _Download(items, now_s)
         return [mavlink.MAVLink_mission_count_message(partner[0], partner[1], len(items), mtype)]
@@ -306,12 +309,8 @@ class MissionServer:
         dl = self._downloads.get((partner, mtype))
         if dl is not None:
             dl.last_s = now_s
-            items = dl.items
-        elif mtype == TYPE_MISSION:
-            items = self._mission
-        elif mtype in EMPTY_TYPES:
-            items = ()
-        else:
+        items = dl.items if dl is not None else self._stored(mtype)
+        if items is None:
             return [self._ack(partner, UNSUPPORTED, mtype)]
         if not 0 <= seq < len(items):
             return [self._ack(partner, INVALID_SEQUENCE, mtype)]
