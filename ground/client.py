@@ -29,12 +29,14 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 
 from heli_common.closing import Closing
+from heli_common.defaults import ports
 from heli_common.geo import GeoPoint
 from heli_common.mavlink.mission_items import MissionItem
 from heli_common.mavlink.udp import LOOPBACK, Address, MavlinkUdp, Message, TlogWriter, mavlink2
 from heli_common.mavlink.wire import decode_param, encode_param, f32
 
 m2 = mavlink2
+PORTS = ports()
 
 GCS_SYSTEM_ID = 255
 GCS_COMPONENT_ID = m2.MAV_COMP_ID_MISSIONPLANNER  # 190
@@ -113,7 +115,7 @@ class GroundClient(Closing):
 
     def __init__(
         self,
-        port: int = 14550,
+        port: int = PORTS.gcs,
         *,
         host: str = LOOPBACK,
         signing_key: bytes | None = None,

@@ -29,6 +29,8 @@ from autopilot.mission.server import MissionServer
 from autopilot.params_table import ParamTable
 from autopilot.trajectory.waypoints import FlightLimits
 from autopilot.trajectory_codec import check_mission
+from heli_common import frames
+from heli_common.defaults import HOME, ports
 from heli_common.geo import GeoPoint, nwu_to_geo
 from heli_common.kinematics import rot_body_to_earth
 from heli_common.mavlink.mission_items import MissionItem
@@ -38,6 +40,7 @@ from heli_common.state import EULER, POS, VEL, FloatArray
 
 log = logging.getLogger("autopilot.gcs")
 m2 = mavlink2
+PORTS = ports()
 
 # PX4 custom main/sub modes (see the module docstring)
 PX4_MAIN_AUTO, PX4_MAIN_OFFBOARD = 4, 6
@@ -121,11 +124,11 @@ MISSION_STATE = {
 @dataclass(frozen=True)
 class GcsConfig:
     host: str = LOOPBACK
-    gcs_port: int = 14550  # ground stations listen here
-    api_port: int = 14540  # API clients (MAVSDK) listen here
-    local_gcs_port: int = 18570  # our end of each link (PX4 SITL's numbers)
-    local_api_port: int = 14580
-    home: GeoPoint = field(default_factory=lambda: GeoPoint(47.397742, 8.545594, 488.0))
+    gcs_port: int = PORTS.gcs  # ground stations listen here
+    api_port: int = PORTS.api  # API clients (MAVSDK) listen here
+    local_gcs_port: int = PORTS.local_gcs  # our end of each link
+    local_api_port: int = PORTS.local_api
+    home: GeoPoint = HOME
     signing_key: bytes | None = None
     offboard_timeout_s: float = 1.0
     rates_hz: dict[int, float] = field(default_factory=lambda: dict(DEFAULT_RATES_HZ))
@@ -348,8 +351,7 @@ class GcsService:
     def _vel_ned(self) -> tuple[float, float, float]:
         e = self._x[EULER]
         rt = rot_body_to_earth(e[0], e[1], e[2])
-        v = rt @ self._x[VEL]
-        return (float(v[0]), float(-v[1]), float(-v[2]))
+        return frames.nwu_to_ned(rt @ self._x[VEL])
 
     # -- receiving ------------------------------------------------------------------------
     def _dispatch(self, link: MavlinkUdp, addr: Address, msg: Message) -> None:
@@ -397,7 +399,7 @@ class GcsService:
                 if not all(math.isfinite(v) for v in vals):
                     self.refused += 1
                     return
-                ref[off : off + 3] = (vals[0], -vals[1], -vals[2])  # NED -> NWU
+                ref[off : off + 3] = frames.ned_to_nwu(vals)
         self._pending.append(_Pending(c.Setpoint(ref)))
 
     # -- commands -------------------------------------------------------------------------
