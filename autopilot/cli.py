@@ -145,7 +145,9 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
             runner = Runner(ctrl, manager, sim, servo_out, cfg, [gcs] if gcs else [], recorder)
             stats = runner.run(stop)
             link = sim.udp.stats.as_dict()
-            link["out_of_order"] = sim.assembler.out_of_order
+            asm = sim.assembler
+            link.update(out_of_order=asm.out_of_order, time_jumps=asm.time_jumps,
+                        implausible=asm.implausible, resyncs=asm.resyncs, plant_sessions=asm.session)
     finally:
         if gcs is not None:
             gcs.close()

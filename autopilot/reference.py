@@ -16,10 +16,11 @@ import numpy as np
 from heli_common.state import FloatArray
 
 N_REF = 9
-REF_POS = slice(0, 3)  # [m]
-REF_VEL = slice(3, 6)  # [m/s]
-REF_ACC = slice(6, 9)  # [m/s^2]
-REF_DERIVATIVES = slice(3, 9)
+POS_0, VEL_0, ACC_0 = 0, 3, 6  # first index of each part (the compiled kernels use these)
+REF_POS = slice(POS_0, POS_0 + 3)  # [m]
+REF_VEL = slice(VEL_0, VEL_0 + 3)  # [m/s]
+REF_ACC = slice(ACC_0, ACC_0 + 3)  # [m/s^2]
+REF_DERIVATIVES = slice(VEL_0, ACC_0 + 3)
 
 
 @dataclass(frozen=True)

@@ -27,6 +27,7 @@ from heli_common.state import N_PITCH, PSI, FloatArray
 
 log = logging.getLogger("autopilot.runner")
 LOCKSTEP_SPIN_S = 0.002  # poll this long before sleeping (see MavlinkUdp.wait)
+RESUME_GAP_PERIODS = 10  # real time: a gap this long between ticks is a stall, not jitter
 
 class TickService(Protocol):
     """A service the runner drives around each control step (the ground-station link)."""
@@ -63,6 +64,9 @@ class LoopStats:
     plant_stale_events: int = 0
     plant_stale: bool = False
     bad_outputs: int = 0
+    plant_sessions: int = 0  # restarts of the plant seen (its clock went back)
+    resumes: int = 0  # real time: ticks resumed after a gap (a stall or a silent plant)
+    gap_max_s: float = 0.0
 
     def summary(self) -> dict[str, Any]:
         lat = np.array(self.lateness_s) if self.lateness_s else np.zeros(1)
@@ -76,6 +80,9 @@ class LoopStats:
             "stale_ticks": self.stale_ticks,
             "plant_stale_events": self.plant_stale_events,
             "bad_outputs": self.bad_outputs,
+            "plant_sessions": self.plant_sessions,
+            "resumes": self.resumes,
+            "gap_max_s": self.gap_max_s,
         }
 
 
@@ -138,6 +145,7 @@ class Runner:
         self.wall_s = 0.0
         self._wall0: float | None = None
         self._t_arm_s = 0.0
+        self._session = 0
 
     def service(self, t_s: float, x: FloatArray) -> None:
         """The services' input, between ticks; also run while the plant is quiet."""
@@ -181,10 +189,42 @@ class Runner:
         d = self.cfg.duration_s
         return d is not None and t_s > d + 1e-9
 
+    def _idle(self, t_s: float) -> None:
+        """No tick (the plant is silent): the services still run, so the ground station
+        keeps its heartbeat and hears what happened."""
+        if self._last_x is None:
+            return
+        for s in self.services:
+            s.between_ticks(t_s, self._last_x)
+            s.after_tick(t_s, self._last_x, None, self.u, float(self._last_x[PSI]))
+
+    def _new_plant_session(self, s: StateSample) -> None:
+        """The plant's clock went back: a restarted plant. Start over with it."""
+        self._session = s.session
+        self.stats.plant_sessions += 1
+        log.warning("new plant session (clock restarted at %.3f s): disarmed, control reset", s.t_us / 1e6)
+        self.manager.plant_restarted(s.t_us / 1e6, s.x)
+        self.ctrl.reset()
+        self.u = np.zeros(N_PITCH)
+
+    def _resume_after_gap(self, gap_s: float, t_s: float) -> None:
+        """Real time, after a stall (of this process, or a silent plant): pause the flight's
+        clock by the gap and re-initialise the controller's filters on the current state,
+        so no pseudo-differentiator sees the gap as a step."""
+        self.stats.resumes += 1
+        self.stats.gap_max_s = max(self.stats.gap_max_s, gap_s)
+        log.warning("control loop resumed after a %.2f s gap: filters re-initialised", gap_s)
+        self.manager.resume_after_gap(gap_s, t_s)
+        if self.flight.armed:
+            self.ctrl.reset()
+
     def _stale(self, stale: bool) -> None:
         if stale and not self.stats.plant_stale:
             self.stats.plant_stale_events += 1
-            log.warning("plant silent for %.2f s: holding the last command", self.cfg.stale_timeout_s)
+            log.warning("plant silent for %.2f s: sending nothing until it is back", self.cfg.stale_timeout_s)
+            self.manager.plant_link(lost=True)
+        elif not stale and self.stats.plant_stale:
+            self.manager.plant_link(lost=False)
         self.stats.plant_stale = stale
 
     def run(self, stop: threading.Event) -> LoopStats:
@@ -210,11 +250,14 @@ class Runner:
             now = time.monotonic()
             if s is None:
                 self._stale(now - last_state > self.cfg.stale_timeout_s)
-                if self._last_x is not None:
-                    self.service(self._last_t_s, self._last_x)
+                if self._last_x is not None:  # vehicle time stands still; the GCS's does not
+                    self._idle(self._last_t_s + (now - last_state))
                 continue
             last_state = now
             self._stale(False)
+            if s.session != self._session:
+                self._new_plant_session(s)
+                last_t_us = -1
             if s.t_us == last_t_us:  # re-sent by the plant: our answer was lost, send it again
                 self.servo_out.send_pitches(s.t_us, self.u, self.flight.armed)
                 continue
@@ -229,6 +272,7 @@ class Runner:
         latest: StateSample | None = None
         latest_at = 0.0
         start = time.monotonic()
+        last_tick_wall: float | None = None
         k = 0
         while not stop.is_set():
             deadline = start + k * period
@@ -246,7 +290,10 @@ class Runner:
             if late >= period:
                 self.stats.overruns += 1
             s = src.latest_state(0.0)
-            if s is not None and (latest is None or s.t_us > latest.t_us):
+            if s is not None and latest is not None and s.session != latest.session:
+                self._new_plant_session(s)
+                latest, latest_at = s, wake
+            elif s is not None and (latest is None or s.t_us > latest.t_us):
                 latest, latest_at = s, wake
             elif latest is not None:
                 self.stats.stale_ticks += 1
@@ -264,8 +311,11 @@ class Runner:
             t_s = k * period
             if self._done(t_s):
                 break
-            if not self.stats.plant_stale:
-                self.tick(t_s, latest.x, latest.t_us)
-            else:
-                self.servo_out.send_pitches(latest.t_us, self.u, self.flight.armed)
+            if self.stats.plant_stale:  # nothing is sent that a plant (a new one?) would act on
+                self._idle(t_s)
+                continue
+            if last_tick_wall is not None and wake - last_tick_wall > RESUME_GAP_PERIODS * period:
+                self._resume_after_gap(wake - last_tick_wall - period, t_s)
+            last_tick_wall = wake
+            self.tick(t_s, latest.x, latest.t_us)
             k += 1

@@ -21,7 +21,13 @@ from autopilot.trajectory.analytic import StraightLine
 from heli_common import servo_map
 from heli_common.airframe import Airframe
 from heli_common.geo import GeoPoint
-from heli_common.mavlink.sim_protocol import StateAssembler, command_message, decode_command, state_messages
+from heli_common.mavlink.sim_protocol import (
+    StateAssembler,
+    StateSample,
+    command_message,
+    decode_command,
+    state_messages,
+)
 from heli_common.mavlink.udp import LOOPBACK, MavlinkUdp, PortBusyError, mavlink2
 
 LIMITS = servo_map.limits_array(Airframe.load().limits.as_tuple())
@@ -98,6 +104,53 @@ def test_out_of_order_state_is_dropped_and_a_repeat_is_answered() -> None:
             s = asm.feed(m)
     assert asm.out_of_order == 1 and asm.last_t_us == 20_000
     assert s is None
+
+
+def _feed(asm: StateAssembler, t_us: int, x: np.ndarray) -> StateSample | None:
+    out = None
+    for m in state_messages(t_us, x):
+        out = asm.feed(m)
+    return out
+
+
+def test_one_far_future_state_cannot_capture_the_timeline() -> None:
+    """A single valid-CRC state stamped 2**62 us (and one holding 1e30 m) is refused and
+    counted; the plant's real states go on being accepted."""
+    asm = StateAssembler()
+    x = np.zeros(12)
+    assert _feed(asm, 10_000, x) is not None
+    assert _feed(asm, 2**62, x) is None
+    huge = x.copy()
+    huge[0] = 1e30
+    assert _feed(asm, 20_000, huge) is None
+    for t_us in range(20_000, 100_000, 10_000):
+        s = _feed(asm, t_us, x)
+        assert s is not None and s.t_us == t_us and s.session == 0
+    assert (asm.time_jumps, asm.implausible, asm.session) == (1, 1, 0)
+
+
+def test_a_restarted_plant_is_recognised_after_three_states() -> None:
+    asm = StateAssembler()
+    x = np.zeros(12)
+    for t_us in range(0, 5_000_000, 10_000):
+        _feed(asm, t_us, x)
+    assert _feed(asm, 0, x) is None  # the new plant's first state: not believed yet
+    assert _feed(asm, 10_000, x) is None
+    s = _feed(asm, 20_000, x)  # three states that continue each other: a new session
+    assert s is not None and s.session == 1 and s.t_us == 20_000
+    assert _feed(asm, 30_000, x) is not None
+    assert asm.out_of_order == 2
+
+
+def test_a_long_gap_forward_is_believed_when_the_states_continue_it() -> None:
+    """A stalled autopilot reads on at the plant's current time: a resync, not a refusal."""
+    asm = StateAssembler()
+    x = np.zeros(12)
+    _feed(asm, 0, x)
+    later = [20_000_000 + k * 10_000 for k in range(4)]
+    got = [_feed(asm, t, x) for t in later]
+    assert got[0] is None and got[1] is None and got[2] is not None and got[3] is not None
+    assert asm.resyncs == 1 and asm.session == 0
 
 
 def test_udp_link_survives_garbage_and_counts_it() -> None:

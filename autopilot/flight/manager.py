@@ -68,6 +68,7 @@ class FlightManager:
         self._mission = mission
         self.offboard_timeout_s = cfg.offboard_timeout_s
         self.mission_on_arm = False  # mission mode selected while disarmed
+        self.plant_lost = False
         self._offboard: _Offboard | None = None
         self._mission_traj: WaypointTrajectory | None = None
         self._mission_done = False
@@ -254,6 +255,34 @@ class FlightManager:
         c.Setpoint: _setpoint,  # type: ignore[dict-item]
         c.FlyTrajectory: _fly_trajectory,  # type: ignore[dict-item]
     }
+
+    def plant_link(self, lost: bool) -> None:
+        """The plant went silent (``lost``) or spoke again: the operator is told."""
+        self.plant_lost = lost
+        if lost:
+            self._say(c.Severity.WARNING, "Plant link lost: no control sent")
+        else:
+            self._say(c.Severity.INFO, "Plant link back")
+
+    def plant_restarted(self, t_s: float, x: FloatArray) -> None:
+        """A new plant session (its clock went back): whatever was flying is gone. The
+        vehicle is disarmed, as after a reboot; the operator is told."""
+        self._t, self._x = t_s, x
+        was_armed = self.flight.armed
+        self.flight.disarm(x, force=True)
+        self.mission_on_arm = False
+        self._mission_traj = None
+        self._say(c.Severity.WARNING, "Plant restarted: disarmed" if was_armed else "Plant restarted")
+
+    def resume_after_gap(self, gap_s: float, t_s: float) -> None:
+        """The control loop did not run for ``gap_s`` (a stall of this process or of the
+        plant link): the flight's clock is paused by the gap, so the reference continues
+        from where it was instead of jumping ahead along the path."""
+        f = self.flight
+        f.t0_s += gap_s
+        if self._offboard is not None:
+            self._offboard.received_t_s += gap_s
+        self._say(c.Severity.WARNING, f"Control resumed after a {gap_s:.1f} s gap"[:50])
 
     # -- the runner's ticks ------------------------------------------------------------
     def pre_tick(self, t_s: float, x: FloatArray) -> None:

@@ -14,7 +14,10 @@ from typing import NamedTuple
 
 import numpy as np
 
+from autopilot.reference import ACC_0 as REF_ACC
 from autopilot.reference import N_REF
+from autopilot.reference import POS_0 as REF_POS
+from autopilot.reference import VEL_0 as REF_VEL
 from autopilot.tlc.allocation import clip, main_rotor_torque, solve_cyclic_tail
 from autopilot.tlc.differentiator import DiffCoeffs, diff_reset, diff_step, discretize
 from autopilot.tlc.gains import Gains
@@ -27,7 +30,6 @@ from heli_common.kinematics import cross, euler_rate_matrix, rot_body_to_earth, 
 from heli_common.state import EULER, N_PITCH, N_STATE, OMEGA, POS, VEL, FloatArray
 
 # reference vector (earth NWU): commanded position and, where known, its derivatives
-REF_POS, REF_VEL, REF_ACC = 0, 3, 6
 
 # controller state layout
 S_I1, S_I2, S_I3, S_I4 = 0, 3, 6, 9  # error integrals of loops 1-4

@@ -18,7 +18,7 @@ import numpy as np
 from heli_common import frames, servo_map
 from heli_common.mavlink.fast import Decoded, SimCodec, hil_alt_vel
 from heli_common.mavlink.udp import MavlinkUdp, Message, mavlink2
-from heli_common.state import N_PITCH, FloatArray
+from heli_common.state import EULER, N_PITCH, OMEGA, POS, VEL, FloatArray
 
 
 class StateFields(NamedTuple):
@@ -81,6 +81,33 @@ def encode_state(codec: SimCodec, t_us: int, x: FloatArray) -> bytes:
 class StateSample:
     t_us: int
     x: FloatArray  # NWU/FLU plant state layout
+    session: int = 0  # bumps when the plant's clock restarts (a restarted plant)
+
+
+# What a state may hold: anything else is a corrupted or hostile datagram, never a vehicle.
+MAX_ABS_POS_M = 1e5
+MAX_ABS_VEL_M_S = 300.0
+MAX_ABS_RATE_RAD_S = 100.0
+MAX_ABS_ANGLE_RAD = 1e3  # Euler angles may be unwrapped (a spinning yaw)
+# Consecutive states of one timeline are at most this far apart in simulation time (the
+# plant steps 1-20 ms; a held or stalled peer can leave gaps of seconds, which arrive as a
+# run of states that continue each other).
+MAX_STEP_US = 5_000_000
+# A jump in time (forward beyond MAX_STEP_US, or back: a restarted plant) is believed only
+# after this many consecutive states that continue each other: one datagram cannot move it.
+RESYNC_STATES = 3
+
+
+def plausible_state(x: FloatArray) -> bool:
+    """Finite and physically possible (positions, speeds, rates, angles)."""
+    if not np.isfinite(x).all():
+        return False
+    return bool(
+        np.abs(x[POS]).max() <= MAX_ABS_POS_M
+        and np.abs(x[VEL]).max() <= MAX_ABS_VEL_M_S
+        and np.abs(x[OMEGA]).max() <= MAX_ABS_RATE_RAD_S
+        and np.abs(x[EULER]).max() <= MAX_ABS_ANGLE_RAD
+    )
 
 
 class SimMessage(Protocol):
@@ -91,14 +118,27 @@ class SimMessage(Protocol):
 
 
 class StateAssembler:
-    """Collects the three state messages of one step; yields a state when all three agree."""
+    """Collects the three state messages of one step; yields a state when all three agree
+    and the state is plausible and on the plant's timeline.
+
+    The timeline: a state is accepted if its time equals the last one (a re-sent state) or
+    advances it by at most MAX_STEP_US. Anything else (a far-future stamp, or time going
+    back) is refused and counted, unless RESYNC_STATES consecutive states continue each
+    other in the new timeline: then it is believed, as a restarted plant (time back: a new
+    ``session``) or a resumed one (time forward)."""
 
     def __init__(self) -> None:
         self._t_us: int | None = None
         self._att: Any = None  # the ATTITUDE of the step being assembled
         self._lpn: Any = None
         self.last_t_us = -1
-        self.out_of_order = 0
+        self.session = 0
+        self.out_of_order = 0  # refused: time went back (and was not a restart)
+        self.time_jumps = 0  # refused: too far ahead
+        self.implausible = 0  # refused: non-finite or physically impossible values
+        self.resyncs = 0  # accepted jumps forward
+        self._cand_t_us = -1
+        self._cand_n = 0
 
     def feed(self, message: SimMessage) -> StateSample | None:
         kind = message.get_type()
@@ -118,17 +158,40 @@ class StateAssembler:
         if att.time_boot_ms != t_ms or lpn.time_boot_ms != t_ms:
             return None
         self._t_us = self._att = self._lpn = None
-        if t_us < self.last_t_us:  # equal: a re-sent state, whose answer may have been lost
-            self.out_of_order += 1
-            return None
         x = frames.state_from_ned_fields(
             att.roll, att.pitch, att.yaw, att.rollspeed, att.pitchspeed, att.yawspeed,
             lpn.x, lpn.y, lpn.z, lpn.vx, lpn.vy, lpn.vz,
         )  # fmt: skip
-        if not np.isfinite(x).all():
+        if not plausible_state(x):
+            self.implausible += 1
+            return None
+        if not self._on_timeline(t_us):
             return None
         self.last_t_us = t_us
-        return StateSample(t_us, x)
+        return StateSample(t_us, x, self.session)
+
+    def _on_timeline(self, t_us: int) -> bool:
+        last = self.last_t_us
+        if last < 0 or last <= t_us <= last + MAX_STEP_US:  # equal: a re-sent state
+            self._cand_n = 0
+            return True
+        if self._cand_n and 0 <= t_us - self._cand_t_us <= MAX_STEP_US:  # equal: re-sent
+            self._cand_n += 1
+        else:
+            self._cand_n = 1
+        self._cand_t_us = t_us
+        if self._cand_n < RESYNC_STATES:
+            if t_us < last:
+                self.out_of_order += 1
+            else:
+                self.time_jumps += 1
+            return False
+        self._cand_n = 0
+        if t_us < last:
+            self.session += 1
+        else:
+            self.resyncs += 1
+        return True
 
 
 MAV_MODE_FLAG_SAFETY_ARMED = int(mavlink2.MAV_MODE_FLAG_SAFETY_ARMED)

@@ -16,7 +16,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
-from heli_common.links import ServoInput
+from heli_common.links import ServoCommand, ServoInput
 from heli_common.mavlink.fast import SimCodec
 from heli_common.mavlink.sim_protocol import (
     encode_state,
@@ -49,6 +49,7 @@ class SimStats:
     commands: int = 0
     stale_commands: int = 0  # time stamp not the current step's (lockstep) or older (realtime)
     bad_commands: int = 0  # NaN, out of range
+    future_commands: int = 0  # stamped later than the plant's own clock: refused
     resent_states: int = 0
     silent_events: int = 0
     autopilot_silent: bool = False
@@ -112,6 +113,18 @@ class PlantServer:
         self.stats.steps += 1
         self.t_us += self.period_us
 
+    def _in_window(self, cmd: ServoCommand) -> bool:
+        """Real time: a command answers a state this plant published, no older than the
+        last one applied and no newer than its own clock (a far-future stamp would
+        otherwise make every real command look old)."""
+        if cmd.t_us > self.t_us:
+            self.stats.future_commands += 1
+            return False
+        if cmd.t_us < self._last_cmd_us:
+            self.stats.stale_commands += 1
+            return False
+        return True
+
     def run(self, stop: threading.Event) -> SimStats:
         gc.freeze()  # start-up objects never need rescanning while the plant runs
         if self.cfg.mode == "lockstep":
@@ -157,7 +170,7 @@ class PlantServer:
         # while the autopilot is starting; until then the state is published at 20 Hz.
         while not stop.is_set():
             self._publish()
-            cmds = self.servo_in.receive(self.t_us, 0.05)
+            cmds = [c for c in self.servo_in.receive(self.t_us, 0.05) if self._in_window(c)]
             if cmds:
                 first = cmds[-1]
                 self._last_cmd_us = first.t_us
@@ -169,8 +182,7 @@ class PlantServer:
         k = 0
         while not stop.is_set() and not self._end_reached():
             for cmd in self.servo_in.receive(self.t_us):
-                if cmd.t_us < self._last_cmd_us:
-                    self.stats.stale_commands += 1
+                if not self._in_window(cmd):
                     continue
                 self._last_cmd_us = cmd.t_us
                 self.stats.commands += 1
