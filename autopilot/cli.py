@@ -24,13 +24,14 @@ from autopilot.params_table import ParamTable
 from autopilot.runner import Recorder, Runner, RunnerConfig
 from autopilot.scenario import Scenario
 from autopilot.tlc.controller import TLController
+from heli_common import cli_args as arg
 from heli_common.config import ConfigError
 from heli_common.defaults import HOME, ports
 from heli_common.geo import GeoPoint
 from heli_common.links import ServoOutput
 from heli_common.mavlink.udp import LOOPBACK
 from heli_common.mavlink.wire import read_signing_key
-from heli_common.process import run_main
+from heli_common.process import UsageError, run_main
 from heli_common.servo_link import add_servo_args, load_servo_link, with_overrides
 from heli_common.servo_map import limits_array
 
@@ -42,27 +43,29 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="heli-autopilot", description=__doc__)
     p.add_argument("--mode", choices=("lockstep", "realtime"), default="realtime")
     p.add_argument("--scenario", default="paper", help="airframe, gains and trajectory source")
-    p.add_argument("--rate-hz", type=float, default=None, help="control rate (50-1000 Hz)")
+    p.add_argument("--rate-hz", type=arg.control_rate_hz, default=None, help="control rate (50-1000 Hz)")
     p.add_argument("--feedforward", choices=("pseudo", "exact"), default=None)
-    p.add_argument("--duration-s", type=float, default=None, help="stop after this flight time")
-    p.add_argument("--port", type=int, default=PORTS.autopilot, help="sim link: UDP port to bind")
-    p.add_argument("--plant-port", type=int, default=PORTS.plant, help="sim link: the plant's UDP port")
-    p.add_argument("--stale-timeout-s", type=float, default=0.5)
+    p.add_argument("--duration-s", type=arg.positive, default=None, help="stop after this flight time")
+    p.add_argument("--port", type=arg.bind_port, default=PORTS.autopilot, help="sim link: UDP port to bind")
+    p.add_argument("--plant-port", type=arg.port, default=PORTS.plant, help="sim link: the plant's UDP port")
+    p.add_argument("--stale-timeout-s", type=arg.positive, default=0.5)
     p.add_argument(
         "--autostart", action="store_true", help="arm and fly the scenario trajectory at once"
     )
     p.add_argument("--out", default=None, help="write run.csv, summary.json, flight.tlog here")
-    p.add_argument("--summary-end-s", type=float, default=None,
+    p.add_argument("--summary-end-s", type=arg.positive, default=None,
                    help="error windows end here (flight time since arming)")
     s = p.add_argument_group("servo link")
     add_servo_args(s)
-    s.add_argument("--can-node-id", type=int, default=None, help="DroneCAN node id")
+    s.add_argument("--can-node-id", type=arg.in_range(1, 127, int), default=None, help="DroneCAN node id")
     g = p.add_argument_group(f"GCS link (ground stations on {PORTS.gcs}, API clients on {PORTS.api})")
     g.add_argument("--no-gcs", action="store_true", help="no ground-station link")
-    g.add_argument("--gcs-port", type=int, default=PORTS.gcs)
-    g.add_argument("--api-port", type=int, default=PORTS.api)
-    g.add_argument("--local-gcs-port", type=int, default=PORTS.local_gcs, help="our end of the GCS link")
-    g.add_argument("--local-api-port", type=int, default=PORTS.local_api, help="our end of the API link")
+    g.add_argument("--gcs-port", type=arg.port, default=PORTS.gcs)
+    g.add_argument("--api-port", type=arg.port, default=PORTS.api)
+    g.add_argument("--local-gcs-port", type=arg.bind_port, default=PORTS.local_gcs,
+                   help="our end of the GCS link")
+    g.add_argument("--local-api-port", type=arg.bind_port, default=PORTS.local_api,
+                   help="our end of the API link")
     g.add_argument("--home", default=f"{HOME.lat_deg},{HOME.lon_deg},{HOME.alt_amsl_m}",
                    help="home latitude,longitude [deg],altitude AMSL [m]")
     g.add_argument("--signing-key", default=None,
@@ -117,6 +120,8 @@ def make_gcs(
 
 
 def run(args: argparse.Namespace, stop: threading.Event) -> int:
+    if args.port == args.plant_port:  # it would only hear its own commands
+        raise UsageError(f"--port and --plant-port must differ (both {args.port})")
     sc = Scenario.load(args.scenario)
     rate = args.rate_hz or sc.run.rate_hz
     ctrl = TLController(sc.airframe, sc.gains, rate, args.feedforward or sc.run.feedforward)
@@ -131,7 +136,7 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
     )
     cfg = RunnerConfig(args.mode, rate, duration, args.stale_timeout_s)
     out = Path(args.out) if args.out else None
-    recorder = Recorder() if out else None
+    recorder = Recorder(stream_csv=out / "run.csv", flush_every=max(1, round(rate))) if out else None
     t0_unix_us = int(time.time() * 1e6)
     gcs = None if args.no_gcs else make_gcs(args, sc, ctrl, manager, limits)
     servo = with_overrides(load_servo_link(args.links), args.servo_link, args.can_bus, args.actuator_ids)
@@ -162,8 +167,10 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
             "gcs_link": gcs.stats() if gcs is not None else None,
             "servo_link": servo.link, "can": dict(can.stats) if can is not None else None,
         })  # fmt: skip
-        record.write_csv(out / "run.csv")
-        write_flight_tlog(out / "flight.tlog", record, limits, t0_unix_us)
+        recorder.close()
+        record.write_csv(out / "run.csv")  # the whole flight again, at once
+        if record.t_s.size:
+            write_flight_tlog(out / "flight.tlog", record, limits, t0_unix_us)
         summary = record.write_summary(out / "summary.json")
         log.info("summary: %s", json.dumps(summary))
     return 0

@@ -59,6 +59,9 @@ class FlightRecord:
     def summary(self) -> dict[str, Any]:
         """Error figures over [0, end], [10, end], [45, end]; ``end`` is the last tick, or
         ``extra["summary_end_s"]`` (e.g. the trajectory's end when a landing follows)."""
+        if self.t_s.size == 0:  # never armed: no flight to measure
+            return {"ticks": 0, "duration_s": 0.0, "rms_pos_err_m": {}, "max_pos_err_m": {},
+                    "max_pos_err_40_45_m": None, "wall_s": self.wall_s, **self.extra}  # fmt: skip
         err = self.pos_err_m
         end = float(self.t_s[-1])
         if self.extra.get("summary_end_s") is not None:
@@ -92,8 +95,12 @@ class FlightRecord:
         out.update(self.extra)
         return out
 
-    def rows(self) -> FloatArray:
+    def rows(self, psi_before: float | None = None) -> FloatArray:
+        """The CSV rows; psi unwrapped (continuing from ``psi_before``, the unwrapped psi of
+        the row before these, when the rows are a later part of a flight)."""
         psi = np.unwrap(self.x[:, PSI])
+        if psi_before is not None and psi.size:
+            psi = np.unwrap(np.concatenate([[psi_before], self.x[:, PSI]]))[1:]
         e = self.x[:, EULER].copy()
         e[:, 2] = psi
         return np.column_stack(
@@ -111,10 +118,15 @@ class FlightRecord:
         with path.open("w", newline="") as fh:
             w = csv.writer(fh)
             w.writerow(CSV_HEADER)
-            for row in self.rows():
-                w.writerow([f"{v:.9g}" for v in row])
+            write_rows(w, self.rows())
 
     def write_summary(self, path: Path) -> dict[str, Any]:
         s = self.summary()
         path.write_text(json.dumps(s, indent=2) + "\n")
         return s
+
+
+def write_rows(writer: Any, rows: FloatArray) -> None:
+    """CSV rows in run.csv's number format (9 significant digits)."""
+    for row in rows:
+        writer.writerow([f"{v:.9g}" for v in row])

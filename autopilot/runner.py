@@ -8,18 +8,20 @@ using the newest state; it measures wake-up lateness, overruns and stale states.
 
 from __future__ import annotations
 
+import csv
 import gc
 import logging
 import threading
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from pathlib import Path
+from typing import IO, Any, Protocol
 
 import numpy as np
 
 from autopilot.flight.manager import FlightManager
-from autopilot.metrics import FlightRecord
+from autopilot.metrics import CSV_HEADER, FlightRecord, write_rows
 from autopilot.tlc.controller import D_PSI_C, N_DIAG, OK, TLController
 from heli_common.links import ServoOutput, StateSource
 from heli_common.mavlink.sim_protocol import StateSample
@@ -94,9 +96,42 @@ class Recorder:
 
     WIDTH = 1 + 12 + 9 + N_PITCH + N_DIAG
 
-    def __init__(self, capacity: int = 16384) -> None:
+    def __init__(self, capacity: int = 16384, stream_csv: Path | None = None, flush_every: int = 100) -> None:
         self.buf = np.empty((capacity, self.WIDTH))
         self.n = 0
+        # run.csv as it flies, flushed every ``flush_every`` rows: a killed process loses
+        # about a second of its record, not all of it
+        self.flush_every = flush_every
+        self._flushed = 0
+        self._psi_before: float | None = None
+        self._fh: IO[str] | None = None
+        self._csv: Any = None
+        if stream_csv is not None:
+            stream_csv.parent.mkdir(parents=True, exist_ok=True)
+            self._fh = stream_csv.open("w", newline="")
+            self._csv = csv.writer(self._fh)
+            self._csv.writerow(CSV_HEADER)
+            self._fh.flush()
+
+    def flush_if_due(self) -> None:
+        if self._fh is not None and self.n - self._flushed >= self.flush_every:
+            self.flush()
+
+    def flush(self) -> None:
+        """Append the rows recorded since the last flush to the streamed run.csv."""
+        if self._fh is None or self.n == self._flushed:
+            return
+        rows = self.record(0.0, {}, start=self._flushed).rows(self._psi_before)
+        write_rows(self._csv, rows)
+        self._fh.flush()
+        self._flushed = self.n
+        self._psi_before = float(rows[-1, CSV_HEADER.index("psi")])
+
+    def close(self) -> None:
+        if self._fh is not None:
+            self.flush()
+            self._fh.close()
+            self._fh = None
 
     def add(self, t: float, x: FloatArray, ref: FloatArray, u: FloatArray, diag: FloatArray) -> None:
         if self.n == self.buf.shape[0]:
@@ -109,10 +144,12 @@ class Recorder:
         row[22 + N_PITCH :] = diag
         self.n += 1
 
-    def record(self, wall_s: float, extra: dict[str, Any], pitches: FloatArray | None = None) -> FlightRecord:
-        """The flight so far; ``pitches`` replaces the commanded ones (e.g. the pitches a
-        servo actually applied, one row per tick)."""
-        b = self.buf[: self.n]
+    def record(
+        self, wall_s: float, extra: dict[str, Any], pitches: FloatArray | None = None, start: int = 0
+    ) -> FlightRecord:
+        """The flight so far (from row ``start``); ``pitches`` replaces the commanded ones
+        (e.g. the pitches a servo actually applied, one row per tick)."""
+        b = self.buf[start : self.n]
         u = b[:, 22 : 22 + N_PITCH].copy() if pitches is None else np.asarray(pitches, dtype=float)
         return FlightRecord.from_ticks(
             b[:, 0].copy(), b[:, 1:13].copy(), b[:, 13:22].copy(), u, b[:, 22 + N_PITCH :], wall_s, extra,
@@ -182,6 +219,8 @@ class Runner:
         for s in self.services:
             s.after_tick(t_s, x, ref, self.u, psi_cmd)
         self.service(t_s, x)
+        if self.recorder is not None:  # after the command went out
+            self.recorder.flush_if_due()
         return self.u
 
     def _done(self, t_s: float) -> bool:

@@ -27,6 +27,7 @@ from ground.client import (
 )
 from ground.files import FileFormatError, MissionFile, load_mission
 from ground.log import TlogError, tlog_columns, write_csv
+from heli_common import cli_args as arg
 from heli_common.defaults import ports
 from heli_common.mavlink.udp import TlogWriter, mavlink2
 from heli_common.mavlink.wire import SigningKeyError, read_signing_key
@@ -45,12 +46,12 @@ class UsageError(Exception):
 
 def build_parser() -> argparse.ArgumentParser:
     common = argparse.ArgumentParser(add_help=False)
-    common.add_argument("--gcs-port", type=int, default=PORTS.gcs,
+    common.add_argument("--gcs-port", type=arg.bind_port, default=PORTS.gcs,
                         help=f"UDP port to listen on: where the vehicle sends (default {PORTS.gcs}; "
                              f"{PORTS.api} is the vehicle's second link)")
     common.add_argument("--signing-key", type=Path, default=None,
                         help="MAVLink 2 signing key file (32 bytes or 64 hex digits)")
-    common.add_argument("--connect-timeout-s", type=float, default=30.0,
+    common.add_argument("--connect-timeout-s", type=arg.positive, default=30.0,
                         help="how long to wait for the vehicle's heartbeat")
     p = argparse.ArgumentParser(prog=PROG, description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -58,15 +59,15 @@ def build_parser() -> argparse.ArgumentParser:
 
     up = sub.add_parser("upload", parents=[common], help="upload a mission or trajectory file")
     up.add_argument("file", type=Path, help=".waypoints, .plan, trajectory .toml or .csv")
-    up.add_argument("--dt-s", type=float, default=None, help="TOML trajectory sampling step [s]")
+    up.add_argument("--dt-s", type=arg.positive, default=None, help="TOML trajectory sampling step [s]")
     up.set_defaults(func=_upload)
 
     fly = sub.add_parser("fly", parents=[common],
                          help="upload, arm, start, follow to the end, land, disarm")
     fly.add_argument("file", type=Path)
-    fly.add_argument("--dt-s", type=float, default=None, help="TOML trajectory sampling step [s]")
+    fly.add_argument("--dt-s", type=arg.positive, default=None, help="TOML trajectory sampling step [s]")
     fly.add_argument("--tlog", type=Path, default=None, help="also record the flight to this .tlog")
-    fly.add_argument("--timeout-s", type=float, default=None,
+    fly.add_argument("--timeout-s", type=arg.positive, default=None,
                      help="give up following after this long (default: the mission's length + 120 s)")
     fly.add_argument("--quiet", action="store_true", help="no progress bar")
     fly.set_defaults(func=_fly)
@@ -74,7 +75,8 @@ def build_parser() -> argparse.ArgumentParser:
     lg = sub.add_parser("log", parents=[common], help="record everything received to a .tlog")
     lg.add_argument("--out", type=Path, required=True, help="the .tlog to write")
     lg.add_argument("--csv", type=Path, default=None, help="then export run.csv columns to this file")
-    lg.add_argument("--duration-s", type=float, default=None, help="stop after this long (default: Ctrl-C)")
+    lg.add_argument("--duration-s", type=arg.positive, default=None,
+                    help="stop after this long (default: Ctrl-C)")
     lg.set_defaults(func=_log)
 
     pl = sub.add_parser("plot", help="the paper's Figs 5-8 from a .tlog")

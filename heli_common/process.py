@@ -12,6 +12,10 @@ from heli_common.mavlink.udp import PortBusyError
 from heli_common.mavlink.wire import SigningKeyError
 
 
+class UsageError(ValueError):
+    """Options that cannot work together (a one-line usage error, exit status 2)."""
+
+
 def terminate_on_sigterm() -> None:
     """Turn SIGTERM into KeyboardInterrupt, so ``finally`` blocks stop the children."""
 
@@ -33,7 +37,7 @@ def run_main(
     exit status every command shares (:class:`heli_common.defaults.Exit`): ``usage``
     errors (and config and signing-key errors) are bad input, ``failure`` ones a vehicle,
     link or child failure, a busy port its own status, Ctrl-C 130."""
-    usage_errors: tuple[type[BaseException], ...] = (SigningKeyError, *usage)
+    usage_errors: tuple[type[BaseException], ...] = (SigningKeyError, UsageError, *usage)
     try:
         return body()
     except PortBusyError as exc:

@@ -11,8 +11,9 @@ import json
 import sys
 from pathlib import Path
 
+from heli_common import cli_args as arg
 from heli_common.defaults import Exit, ports
-from heli_common.process import run_main
+from heli_common.process import UsageError, run_main
 from heli_common.servo_link import add_servo_args
 
 PORTS = ports()
@@ -70,6 +71,8 @@ def _run(args: argparse.Namespace) -> int:
     from heli_sitl.plant.model import Plant
     from heli_sitl.plant.server import PlantServer, SimConfig
 
+    if args.port == args.autopilot_port:  # it would only hear its own states
+        raise UsageError(f"--port and --autopilot-port must differ (both {args.port})")
     logging.basicConfig(
         level=logging.INFO if args.verbose else logging.WARNING,
         format="heli-sitl: %(levelname)s %(message)s",
@@ -168,10 +171,10 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="cmd", required=True)
     s = sub.add_parser("simulate", help="closed loop in one process; writes CSV, summary, figures")
     s.add_argument("--scenario", default="paper", help="name (configs/scenario_NAME.toml) or path")
-    s.add_argument("--rate-hz", type=float, default=None, help="control rate, 50-1000 Hz")
+    s.add_argument("--rate-hz", type=arg.control_rate_hz, default=None, help="control rate, 50-1000 Hz")
     s.add_argument("--feedforward", choices=("pseudo", "exact"), default=None)
-    s.add_argument("--plant-substeps", type=int, default=None, help="RK4 sub-steps per tick")
-    s.add_argument("--duration-s", type=float, default=None)
+    s.add_argument("--plant-substeps", type=arg.count, default=None, help="RK4 sub-steps per tick")
+    s.add_argument("--duration-s", type=arg.positive, default=None)
     s.add_argument("--out", required=True, help="output directory")
     s.add_argument("--quiet", action="store_true", help="no progress bar")
     s.set_defaults(func=_simulate)
@@ -180,13 +183,13 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--mode", choices=("lockstep", "realtime"), default="realtime")
     r.add_argument("--scenario", default="paper", help="airframe and initial state")
     r.add_argument("--on-ground", action="store_true", help="start on the ground at home")
-    r.add_argument("--rate-hz", type=float, default=None,
+    r.add_argument("--rate-hz", type=arg.physics_rate_hz, default=None,
                    help="lockstep: control rate; realtime: physics rate")
-    r.add_argument("--plant-substeps", type=int, default=1)
-    r.add_argument("--duration-s", type=float, default=None)
-    r.add_argument("--port", type=int, default=PORTS.plant, help="UDP port to bind")
-    r.add_argument("--autopilot-port", type=int, default=PORTS.autopilot)
-    r.add_argument("--timeout-s", type=float, default=1.0, help="autopilot silent after this")
+    r.add_argument("--plant-substeps", type=arg.count, default=1)
+    r.add_argument("--duration-s", type=arg.positive, default=None)
+    r.add_argument("--port", type=arg.bind_port, default=PORTS.plant, help="UDP port to bind")
+    r.add_argument("--autopilot-port", type=arg.port, default=PORTS.autopilot)
+    r.add_argument("--timeout-s", type=arg.positive, default=1.0, help="autopilot silent after this")
     add_servo_args(r)
     r.add_argument("--hold-until-armed", action="store_true",
                    help="in-air start: do not step until the autopilot arms")
@@ -195,23 +198,23 @@ def build_parser() -> argparse.ArgumentParser:
 
     u = sub.add_parser("up", help="plant + autopilot, disarmed on the ground, serving ground stations")
     u.add_argument("--mode", choices=("lockstep", "realtime"), default="realtime")
-    u.add_argument("--rate-hz", type=float, default=100.0)
+    u.add_argument("--rate-hz", type=arg.control_rate_hz, default=100.0)
     u.add_argument("--scenario", default="paper", help="airframe and gains")
     u.add_argument("--in-air", action="store_true",
                    help="start at the scenario's initial state, clock held until armed")
-    u.add_argument("--gcs-port", type=int, default=PORTS.gcs)
-    u.add_argument("--api-port", type=int, default=PORTS.api)
-    u.add_argument("--local-gcs-port", type=int, default=PORTS.local_gcs)
-    u.add_argument("--local-api-port", type=int, default=PORTS.local_api)
+    u.add_argument("--gcs-port", type=arg.port, default=PORTS.gcs)
+    u.add_argument("--api-port", type=arg.port, default=PORTS.api)
+    u.add_argument("--local-gcs-port", type=arg.bind_port, default=PORTS.local_gcs)
+    u.add_argument("--local-api-port", type=arg.bind_port, default=PORTS.local_api)
     u.add_argument("--signing-key", default=None)
     u.add_argument("--out", default=None, help="autopilot writes run.csv/summary/tlog here on exit")
     u.set_defaults(func=_up)
 
     d = sub.add_parser("demo", help="plant + autopilot as processes, fly the scenario")
     d.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep")
-    d.add_argument("--rate-hz", type=float, default=100.0)
+    d.add_argument("--rate-hz", type=arg.control_rate_hz, default=100.0)
     d.add_argument("--scenario", default="paper")
-    d.add_argument("--duration-s", type=float, default=None)
+    d.add_argument("--duration-s", type=arg.positive, default=None)
     d.add_argument("--autostart", action="store_true",
                    help="the autopilot starts the scenario itself (no ground script process)")
     d.add_argument("--servo-link", choices=("mavlink", "can"), default=None)

@@ -170,6 +170,9 @@ def serve(opts: UpOptions, stop_after_s: float | None = None) -> None:
         pass
     finally:
         stop_all([p for _, p in procs])
+    for name, p in procs:  # each child ends its own way on SIGTERM: with status 0
+        if p.returncode != 0:
+            raise DemoError(f"{name} failed ({describe_exit(p.returncode)}): {p.last_error_line()}")
 
 
 def scenario_file(name_or_path: str) -> Path:

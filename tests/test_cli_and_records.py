@@ -1,0 +1,120 @@
+"""Bad numbers on the command line, and the flight record when a process ends badly.
+
+Every numeric option is checked where it is parsed: a one-line usage error (exit 2), never a
+traceback or a silent default. The autopilot streams run.csv as it flies (a kill -9 loses
+about a second of it), writes a record of an unarmed session without crashing, and the
+launcher's exit status says when one of its children failed.
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from vehicle import free_ports, spawn_up
+
+from autopilot import cli as autopilot_cli
+from ground import cli as ground_cli
+from ground.plots import read_csv_columns
+from heli_common.mavlink.udp import LOOPBACK, MavlinkUdp, free_udp_port
+from heli_sitl import cli as sitl_cli
+from heli_sitl.children import spawn
+
+BAD_OPTIONS = [
+    (sitl_cli.main, ["run", "--port", "99999"], "--port"),
+    (sitl_cli.main, ["run", "--rate-hz", "0"], "--rate-hz"),
+    (sitl_cli.main, ["run", "--plant-substeps", "0"], "--plant-substeps"),
+    (sitl_cli.main, ["run", "--timeout-s", "nan"], "--timeout-s"),
+    (sitl_cli.main, ["simulate", "--duration-s", "-1", "--out", "x"], "--duration-s"),
+    (sitl_cli.main, ["up", "--gcs-port", "0"], "--gcs-port"),
+    (sitl_cli.main, ["demo", "--rate-hz", "5000", "--out", "x"], "--rate-hz"),
+    (autopilot_cli.main, ["--rate-hz", "0"], "--rate-hz"),
+    (autopilot_cli.main, ["--stale-timeout-s", "0"], "--stale-timeout-s"),
+    (autopilot_cli.main, ["--can-node-id", "200"], "--can-node-id"),
+    (ground_cli.main, ["log", "--gcs-port", "70000", "--out", "x.tlog"], "--gcs-port"),
+    (ground_cli.main, ["fly", "f.waypoints", "--timeout-s", "-3"], "--timeout-s"),
+]
+
+
+@pytest.mark.parametrize(("main", "argv", "option"), BAD_OPTIONS)
+def test_bad_numbers_are_usage_errors(main, argv, option, capsys: pytest.CaptureFixture[str]) -> None:  # type: ignore[no-untyped-def]
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith(("heli-sitl", "heli-autopilot", "heli-ground")) and option in err[-1]
+    assert "Traceback" not in "\n".join(err)
+
+
+def test_a_port_that_would_talk_to_itself_is_refused(capsys: pytest.CaptureFixture[str]) -> None:
+    assert sitl_cli.main(["run", "--port", "5999", "--autopilot-port", "5999"]) == 2
+    assert "must differ" in capsys.readouterr().err
+    assert autopilot_cli.main(["--port", "5998", "--plant-port", "5998"]) == 2
+    assert "must differ" in capsys.readouterr().err
+
+
+def test_a_missing_signing_key_is_a_one_line_error(capsys: pytest.CaptureFixture[str]) -> None:
+    rc = autopilot_cli.main(["--signing-key", "/nonexistent/key", "--port", str(free_udp_port()),
+                             "--plant-port", str(free_udp_port()), "--local-gcs-port", "0",
+                             "--local-api-port", "0"])  # fmt: skip
+    assert rc == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "signing key" in err[0]
+
+
+@pytest.mark.slow
+def test_stopping_before_arming_writes_an_empty_record(tmp_path: Path) -> None:
+    ports = free_ports()
+    up = spawn_up(ports, "--out", str(tmp_path))
+    with MavlinkUdp((LOOPBACK, ports.gcs), drop_nonfinite=False) as gcs:
+        deadline = time.monotonic() + 120.0
+        while not any(m.get_type() == "HEARTBEAT" for m, _ in gcs.recv(0.5)):
+            assert time.monotonic() < deadline, "no heartbeat"
+    up.send_signal(signal.SIGTERM)
+    assert up.wait(timeout=60) == 0, up.output()[-2000:]
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["ticks"] == 0 and summary["rms_pos_err_m"] == {}
+    assert (tmp_path / "run.csv").read_text().startswith("t,x,y,z")
+    assert "Traceback" not in (tmp_path / "logs" / "autopilot.log").read_text()
+
+
+@pytest.mark.slow
+def test_a_killed_autopilot_leaves_its_record_up_to_a_second_before(tmp_path: Path) -> None:
+    pp, ap = free_udp_port(), free_udp_port()
+    common = ["--mode", "realtime", "--rate-hz", "100"]
+    plant = spawn([sys.executable, "-m", "heli_sitl.cli", "run", *common, "--port", str(pp),
+                   "--autopilot-port", str(ap)], "plant")  # fmt: skip
+    autopilot = spawn([sys.executable, "-m", "autopilot.cli", *common, "--port", str(ap), "--plant-port",
+                       str(pp), "--autostart", "--out", str(tmp_path), "--no-gcs"], "autopilot")  # fmt: skip
+    try:
+        deadline = time.monotonic() + 120.0
+        csv = tmp_path / "run.csv"
+        while not (csv.exists() and csv.stat().st_size > 2000):  # flying (after a cold compile)
+            assert time.monotonic() < deadline, "no rows"
+            time.sleep(0.2)
+        t0 = time.monotonic()
+        time.sleep(5.0)
+        autopilot.proc.kill()  # SIGKILL: no chance to write anything
+        flown_s = time.monotonic() - t0
+        autopilot.wait(timeout=10)
+    finally:
+        plant.kill()
+        autopilot.kill()
+    cols = read_csv_columns(tmp_path / "run.csv")
+    assert cols["t"][-1] > flown_s - 1.5, f"record ends at {cols['t'][-1]:.2f} s"
+    assert np.all(np.diff(cols["t"]) > 0) and np.all(np.isfinite(cols["x"]))
+    assert np.all(np.abs(np.diff(cols["psi"])) < 0.5)  # unwrapped across the flushes
+
+
+@pytest.mark.slow
+def test_the_launcher_exit_status_names_a_failed_child(tmp_path: Path) -> None:
+    ports = free_ports()
+    with MavlinkUdp((LOOPBACK, ports.local_gcs)):  # the autopilot's own GCS port is taken
+        up = spawn_up(ports)
+        assert up.wait(timeout=120) == 1
+    assert "autopilot" in up.last_error_line() and "busy" in up.last_error_line()
