@@ -1,7 +1,7 @@
 """The MAVLink parameter table: the TLC gains and limits as named, range-checked parameters.
 
 Names (at most 16 characters, the MAVLink param_id limit), in this stable index order;
-all REAL32 except MAV_SYS_ID (INT32):
+all REAL32 (see "Encoding" below):
 
   TLC_L{1,2}_W_{X,Y,Z}   loops 1-2 (position) omega per NWU channel [rad/s]
   TLC_L{1,2}_Z_{X,Y,Z}   loops 1-2 zeta per channel
@@ -28,13 +28,13 @@ PARAM_SET by broadcasting a PARAM_VALUE even if the write operation fails").
 The pitch limits are disarmed-only because the sim link normalises servo commands by
 them: changing them in flight would change what a given normalised command means.
 
-Values travel in PARAM_VALUE.param_value (a float32). INT32 parameters are encoded
-byte-wise by default, as the parameter protocol specifies
-(MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE must then be set in AUTOPILOT_VERSION);
-``encoding="c_cast"`` sends them as plain float values (ArduPilot style, capability
-PARAM_ENCODE_C_CAST). The only INT32 parameter is small (MAV_SYS_ID), because CPython
-turns float32 signalling-NaN bit patterns into quiet NaNs, which corrupts byte-wise
-encoded int32 values in the ranges -8388607..-4194305 and 2139095041..2143289343.
+Encoding. Values travel in PARAM_VALUE.param_value, a float32, and the ground stations
+disagree about integer types for a MAV_AUTOPILOT_GENERIC vehicle: QGroundControl and MAVSDK
+decode INT32 byte-wise, MAVProxy by C cast (it decodes byte-wise only for PX4). A REAL32
+value reads the same in all three, so every parameter here is REAL32 (whole numbers, such
+as MAV_SYS_ID, are exact in float32 up to 2**24), and AUTOPILOT_VERSION advertises
+MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST alone (true of REAL32, and of any INT32 a
+later version might add).
 
 The autopilot applies changes between control steps: compare :attr:`ParamTable.generation`
 with the last one applied, then take :meth:`gains`, :meth:`pitch_limits`,
@@ -48,9 +48,9 @@ import enum
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import ClassVar, Literal
+from typing import ClassVar
 
-from pymavlink.dialects.v20 import common as mavlink
+from pymavlink.dialects.v20 import development as mavlink
 
 from autopilot.tlc.gains import CommandLimits, DifferentiatorGains, Gains, LoopGains
 from heli_common.airframe import PitchLimits
@@ -168,7 +168,7 @@ def _build_specs() -> tuple[ParamSpec, ...]:
     specs += [
         _real("FS_STATE_TMO", FailsafeTimeouts, "state_link_timeout_s", rw, "state link timeout"),
         _real("FS_OFFB_TMO", FailsafeTimeouts, "offboard_timeout_s", rw, "offboard timeout"),
-        ParamSpec("MAV_SYS_ID", INT32, 1, 255, "", ro, "MAVLink system id"),
+        ParamSpec("MAV_SYS_ID", REAL32, 1, 255, "", ro, "MAVLink system id"),
         ParamSpec("HOME_LAT", REAL32, -90.0, 90.0, "deg", ro, "home latitude"),
         ParamSpec("HOME_LON", REAL32, -180.0, 180.0, "deg", ro, "home longitude"),
         ParamSpec("HOME_ALT", REAL32, -1e4, 1e5, "m", ro, "home altitude AMSL"),
@@ -191,14 +191,12 @@ class ParamTable:
         home: GeoPoint | None = None,
         system_id: int = 1,
         component_id: int = 1,
-        encoding: Literal["bytewise", "c_cast"] = "bytewise",
     ) -> None:
         self._gains = gains
         self._pitch = pitch_limits
         self._failsafe = failsafe or FailsafeTimeouts()
         self.system_id = system_id
         self.component_id = component_id
-        self.encoding = encoding
         self.generation = 0  # bumps on every accepted change
         self._specs = SPECS
         self._index = {s.name: i for i, s in enumerate(self._specs)}
@@ -337,13 +335,13 @@ class ParamTable:
     # ----------------------------------------------------------------- wire encoding
 
     def encode_value(self, key: str | int) -> float:
-        """The float32 ``param_value`` carrying the parameter (byte-wise for INT32)."""
+        """The float32 ``param_value`` carrying the parameter (C cast)."""
         s = self.spec(key)
-        return encode_param(self._values[s.name], s.param_type, self.encoding == "bytewise")
+        return encode_param(self._values[s.name], s.param_type, bytewise=False)
 
     def decode_value(self, param_value: float, param_type: int) -> float:
         """A received ``param_value`` of ``param_type`` -> the number it stands for."""
-        return decode_param(param_value, param_type, self.encoding == "bytewise")
+        return decode_param(param_value, param_type, bytewise=False)
 
     def param_value_message(self, key: str | int) -> Message:
         """PARAM_VALUE for one parameter (param_count and param_index filled in)."""

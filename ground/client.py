@@ -31,6 +31,7 @@ from dataclasses import dataclass, field, replace
 from heli_common.closing import Closing
 from heli_common.defaults import ports
 from heli_common.geo import GeoPoint
+from heli_common.mavlink import modes as wm
 from heli_common.mavlink.mission_items import MissionItem
 from heli_common.mavlink.udp import LOOPBACK, Address, MavlinkUdp, Message, TlogWriter, mavlink2
 from heli_common.mavlink.wire import decode_param, encode_param, f32
@@ -40,7 +41,10 @@ PORTS = ports()
 
 GCS_SYSTEM_ID = 255
 GCS_COMPONENT_ID = m2.MAV_COMP_ID_MISSIONPLANNER  # 190
-PX4_MAIN_AUTO, PX4_SUB_LOITER, PX4_SUB_MISSION, PX4_MAIN_OFFBOARD = 4, 3, 4, 6
+# the vehicle's mode numbers (heli_common.mavlink.modes): main/sub as DO_SET_MODE takes them
+PX4_MAIN_AUTO, PX4_SUB_MISSION = wm.main_sub(wm.MISSION.custom_mode)
+PX4_SUB_LOITER = wm.main_sub(wm.HOLD.custom_mode)[1]
+PX4_MAIN_OFFBOARD = wm.main_sub(wm.OFFBOARD.custom_mode)[0]
 FORCE_DISARM_MAGIC = 21196  # MAV_CMD_COMPONENT_ARM_DISARM param2: disarm even in flight
 
 
@@ -75,15 +79,13 @@ def enum_name(enum: str, value: int) -> str:
     return str(entry.name) if entry is not None else f"{enum}({value})"
 
 
-def px4_mode(custom_mode: int) -> tuple[int, int]:
-    """HEARTBEAT custom_mode -> PX4 (main, sub) mode numbers, as this vehicle reports them."""
-    return (custom_mode >> 16) & 0xFF, (custom_mode >> 24) & 0xFF
+px4_mode = wm.main_sub  # HEARTBEAT custom_mode -> (main, sub), as this vehicle reports them
 
 
 @dataclass(frozen=True)
 class ParamValue:
     name: str
-    value: float  # decoded: INT32 parameters are carried byte-wise in the float
+    value: float  # decoded (C cast, as the vehicle advertises)
     param_type: int
     index: int
     count: int
@@ -534,15 +536,15 @@ class GroundClient(Closing):
     # ----------------------------------------------------------------- parameters
 
     def _decode_param(self, m: Message) -> ParamValue:
-        # Byte-wise encoding (the vehicle advertises MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE)
-        value = decode_param(float(m.param_value), int(m.param_type), bytewise=True)
+        # C cast: what this vehicle advertises (MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST)
+        value = decode_param(float(m.param_value), int(m.param_type), bytewise=False)
         name = _param_name(m.param_id)
         self._param_types[name] = int(m.param_type)
         return ParamValue(name, value, int(m.param_type), int(m.param_index), int(m.param_count))
 
     def _encode_param(self, value: float, param_type: int) -> float:
         try:
-            return encode_param(value, param_type, bytewise=True)
+            return encode_param(value, param_type, bytewise=False)
         except ValueError as exc:
             raise ParamError(str(exc)) from exc
 

@@ -39,14 +39,12 @@ def mgr() -> FlightManager:
     return FlightManager(FlightConfig(home=HOME, offboard_timeout_s=1.0))
 
 
-def test_arming_needs_a_plan(mgr: FlightManager) -> None:
-    reply = mgr.execute(c.Arm(), 0.0, ON_GROUND)
-    assert reply.result is c.Result.DENIED and "no mission" in reply.text
-    assert not mgr.armed and not mgr.armable()
-    mgr.set_mission_source(takeoff_mission)
+def test_arming_needs_no_plan_and_holds_where_it_is(mgr: FlightManager) -> None:
     assert mgr.armable()
     assert mgr.execute(c.Arm(), 0.0, ON_GROUND).accepted
-    assert mgr.armed
+    assert mgr.armed and mgr.mode is Mode.HOLD
+    assert mgr.execute(c.Takeoff(3.0), 0.0, ON_GROUND).accepted  # then a take-off (MAVSDK)
+    assert mgr.mode is Mode.AUTO
 
 
 def test_mission_mode_while_disarmed_starts_on_the_arming_tick(mgr: FlightManager) -> None:

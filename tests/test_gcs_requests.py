@@ -18,6 +18,7 @@ from test_ground_client import client, gwp, running_vehicle
 
 from ground.client import GroundClient
 from heli_common.mavlink import mission_items as ms
+from heli_common.mavlink import modes as wm
 from heli_common.mavlink.udp import Message, mavlink2
 from heli_sitl.children import spawn
 
@@ -114,3 +115,76 @@ def test_a_dead_child_is_reported_by_name_of_its_signal() -> None:
     child = spawn([sys.executable, "-c", "import os, signal; os.kill(os.getpid(), signal.SIGKILL)"], "victim")
     child.wait(timeout=30)
     assert child.last_error_line() == "killed by SIGKILL"
+
+
+def _request(gc: GroundClient, msg_id: int, param2: float = 0.0) -> tuple[int, list[Message]]:
+    """MAV_CMD_REQUEST_MESSAGE -> (MAV_RESULT, the messages of that id that came with it)."""
+    got: list[Message] = []
+
+    def keep(m: Message) -> None:
+        if m.get_msgId() == msg_id and gc.from_vehicle(m):
+            got.append(m)
+
+    gc.listeners.append(keep)
+    try:
+        result = gc.command(m2.MAV_CMD_REQUEST_MESSAGE, [float(msg_id), param2], timeout_s=1.0, retries=0)
+        gc.spin(0.2)
+    finally:
+        gc.listeners.remove(keep)
+    return result, got
+
+
+@pytest.mark.slow
+def test_qgroundcontrol_connect_sequence_is_answered_at_every_step() -> None:
+    """What QGroundControl asks on connect (InitialConnectStateMachine, StandardModes,
+    ComponentInformationManager, ParameterManager, PlanManager), in its order; every step is
+    answered at once, so QGC never waits for a retry."""
+    with running_vehicle() as v, client(v.gcs_port) as gc:
+        t0 = time.monotonic()
+        result, (ver,) = _request(gc, m2.MAVLINK_MSG_ID_AUTOPILOT_VERSION)
+        assert result == m2.MAV_RESULT_ACCEPTED
+        caps, cap = ver.capabilities, m2
+        assert caps & cap.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST
+        assert caps & cap.MAV_PROTOCOL_CAPABILITY_MAVLINK2
+        assert not caps & cap.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE  # one encoding, alone
+        # no fence or rally: QGC then does not ask for them
+        fence_or_rally = cap.MAV_PROTOCOL_CAPABILITY_MISSION_FENCE | cap.MAV_PROTOCOL_CAPABILITY_MISSION_RALLY
+        assert not caps & fence_or_rally
+        # standard modes, one index at a time as QGC asks
+        result, (first_mode,) = _request(gc, wm.MSG_ID_AVAILABLE_MODES, 1.0)
+        n = first_mode.number_modes
+        names = [first_mode.mode_name]
+        for i in range(2, n + 1):
+            result, (mode,) = _request(gc, wm.MSG_ID_AVAILABLE_MODES, float(i))
+            assert result == m2.MAV_RESULT_ACCEPTED and mode.mode_index == i
+            names.append(mode.mode_name)
+        assert names == [m.name for m in wm.MODES]
+        assert _request(gc, wm.MSG_ID_AVAILABLE_MODES, float(n + 1))[0] == m2.MAV_RESULT_DENIED
+        # component metadata and protocol version: refused at once (QGC moves on)
+        for msg_id in (397, 395, 300):
+            assert _request(gc, msg_id)[0] in (m2.MAV_RESULT_DENIED, m2.MAV_RESULT_UNSUPPORTED)
+        # parameters, then mission, fence and rally downloads
+        assert len(gc.param_list()) == 43
+        for mtype in (m2.MAV_MISSION_TYPE_MISSION, m2.MAV_MISSION_TYPE_FENCE, m2.MAV_MISSION_TYPE_RALLY):
+            gc.send(m2.MAVLink_mission_request_list_message(1, 1, mtype))
+            count = gc.recv_match(
+                lambda m, t=mtype: m.get_type() == "MISSION_COUNT" and m.mission_type == t, 1.0
+            )
+            assert count is not None, mtype
+            if count.count == 0:
+                continue
+            gc.send(m2.MAVLink_mission_ack_message(1, 1, m2.MAV_MISSION_ACCEPTED, mtype))
+        result, (home,) = _request(gc, m2.MAVLINK_MSG_ID_HOME_POSITION)
+        assert result == m2.MAV_RESULT_ACCEPTED and home.latitude == 473977420
+        took = time.monotonic() - t0
+        print(f"QGC connect sequence answered in {took:.2f} s")
+        assert took < 10.0
+        # modes set the three ways: whole custom mode, standard mode, SET_MODE message
+        assert gc.command(m2.MAV_CMD_DO_SET_MODE, [1.0, float(wm.HOLD.custom_mode)]) == m2.MAV_RESULT_ACCEPTED
+        assert gc.command(wm.CMD_DO_SET_STANDARD_MODE, [1.0]) == m2.MAV_RESULT_ACCEPTED  # POSITION_HOLD
+        assert gc.command(wm.CMD_DO_SET_STANDARD_MODE, [3.0]) == m2.MAV_RESULT_FAILED  # CRUISE: none here
+        gc.send(m2.MAVLink_set_mode_message(1, m2.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, wm.HOLD.custom_mode))
+        text = gc.recv_match(lambda m: m.get_type() == "STATUSTEXT", 2.0)
+        assert text is not None and text.text == "Hold"
+        cur = gc.recv_match(lambda m: m.get_msgId() == wm.MSG_ID_CURRENT_MODE, 3.0)
+        assert cur is not None and cur.custom_mode == wm.HOLD.custom_mode and cur.standard_mode == 1

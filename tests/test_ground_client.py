@@ -194,7 +194,7 @@ def test_param_list_is_complete_even_when_values_are_lost(shared: Vehicle) -> No
     assert [p.index for p in params.values()] == list(range(N_PARAMS))
     assert all(p.count == N_PARAMS and math.isfinite(p.value) for p in params.values())
     assert params["TLC_L1_W_X"].param_type == m2.MAV_PARAM_TYPE_REAL32
-    assert params["MAV_SYS_ID"].param_type == m2.MAV_PARAM_TYPE_INT32 and params["MAV_SYS_ID"].value == 1
+    assert params["MAV_SYS_ID"].param_type == m2.MAV_PARAM_TYPE_REAL32 and params["MAV_SYS_ID"].value == 1
     assert params["HOME_LAT"].value == pytest.approx(HOME.lat_deg, abs=2e-6)  # float32
 
 
@@ -341,10 +341,11 @@ def test_command_results(gc: GroundClient) -> None:
     assert gc.command(m2.MAV_CMD_DO_SET_SERVO, [1, 1500]) == m2.MAV_RESULT_UNSUPPORTED
     assert gc.command(40_000) == m2.MAV_RESULT_UNSUPPORTED  # not a command at all
     gc.clear_mission()
-    assert gc.command(m2.MAV_CMD_COMPONENT_ARM_DISARM, [1]) == m2.MAV_RESULT_DENIED  # no mission
+    assert gc.command(m2.MAV_CMD_COMPONENT_ARM_DISARM, [1]) == m2.MAV_RESULT_ACCEPTED  # holds, on the ground
+    assert gc.command(m2.MAV_CMD_COMPONENT_ARM_DISARM, [0]) == m2.MAV_RESULT_ACCEPTED
     gc.upload_mission(square_mission())
     assert gc.command(m2.MAV_CMD_MISSION_START, [0, 0]) == m2.MAV_RESULT_DENIED  # disarmed
-    assert gc.command(m2.MAV_CMD_NAV_TAKEOFF, [0, 0, 0, 0, 0, 0, HOME.alt_amsl_m + 2]) == m2.MAV_RESULT_DENIED
+    assert gc.command(m2.MAV_CMD_NAV_TAKEOFF, [0, 0, 0, 0, 0, 0, 2.0]) == m2.MAV_RESULT_DENIED  # disarmed
     assert gc.command(m2.MAV_CMD_COMPONENT_ARM_DISARM, [1]) == m2.MAV_RESULT_ACCEPTED
     assert gc.command(m2.MAV_CMD_COMPONENT_ARM_DISARM, [0]) == m2.MAV_RESULT_ACCEPTED  # still on the ground
     hb = next_heartbeat(gc)

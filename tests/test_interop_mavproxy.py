@@ -17,7 +17,9 @@ item 0 too; on this vehicle that is a waypoint at home on the ground, flown firs
 from __future__ import annotations
 
 import math
+import os
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -33,6 +35,7 @@ from vehicle import free_ports, spawn_up
 
 from ground.client import GroundClient
 from ground.files import read_waypoints, write_waypoints
+from heli_common.config import CONFIG_DIR as CONFIGS
 from heli_common.frames import flip
 from heli_common.geo import GeoPoint, nwu_to_geo
 from heli_common.mavlink import mission_items as ms
@@ -47,12 +50,12 @@ START_S = 60.0
 class MavProxy:
     """A MAVProxy process fed on stdin; its output is collected by a thread."""
 
-    def __init__(self, master_port: int, workdir: Path) -> None:
+    def __init__(self, master_port: int, workdir: Path, env: dict[str, str] | None = None) -> None:
         cmd = [sys.executable, "-m", "MAVProxy.mavproxy", f"--master=udpin:127.0.0.1:{master_port}",
                "--no-state", f"--state-basedir={workdir}", "--source-system=255"]  # fmt: skip
         # heli_sitl.demo.spawn gives no stdin pipe; the same parent-death signal is kept.
         self.proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                     stderr=subprocess.STDOUT, cwd=workdir,
+                                     stderr=subprocess.STDOUT, cwd=workdir, env=env,
                                      preexec_fn=die_with_parent)  # fmt: skip
         self._out: list[str] = []
         self._lock = threading.Lock()
@@ -104,13 +107,13 @@ class MavProxy:
 
 
 @contextmanager
-def vehicle_and_mavproxy(tmp_path: Path) -> Iterator[tuple[MavProxy, int]]:
+def vehicle_and_mavproxy(tmp_path: Path, env: dict[str, str] | None = None) -> Iterator[tuple[MavProxy, int]]:
     ports = free_ports()
     gcs = ports.gcs
     up = spawn_up(ports)
     mp = None
     try:
-        mp = MavProxy(gcs, tmp_path)
+        mp = MavProxy(gcs, tmp_path, env)
         yield mp, ports.api
     finally:
         if mp is not None:
@@ -214,3 +217,33 @@ def nwu_target(item: MissionItem) -> tuple[float, float, float]:
     n, e, d = p.north_east_m[0], p.north_east_m[1], p.down_m
     assert math.isfinite(n + e + d)
     return flip((n, e, d))
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(180)
+def test_mavproxy_names_and_sets_modes_reads_parameters_and_sees_no_fence(tmp_path: Path) -> None:
+    """With the vehicle's mode map installed where pymavlink looks for one
+    (configs/pymavlink_custom_mode_map.json -> ~/.pymavlink/custom_mode_map.json), the prompt
+    names the mode and ``mode NAME`` works; parameters read and set as the numbers they are;
+    SYS_STATUS gives MAVProxy no reason to report a fence breach."""
+    home = tmp_path / "home"
+    (home / ".pymavlink").mkdir(parents=True)
+    shutil.copy(CONFIGS / "pymavlink_custom_mode_map.json", home / ".pymavlink" / "custom_mode_map.json")
+    with vehicle_and_mavproxy(tmp_path, {**os.environ, "HOME": str(home)}) as (mp, _):
+        mp.expect(r"Received 43 parameters", START_S)
+        mp.expect(r"^HOLD> |Mode HOLD", 5.0)
+        pos = mp.send("param show MAV_SYS_ID")
+        mp.expect(r"MAV_SYS_ID\s+1(\.0)?\s*$", 5.0, pos)
+        pos = mp.send("param set TLC_RATE_HZ 200")
+        time.sleep(1.0)  # the vehicle's PARAM_VALUE updates MAVProxy's copy
+        mp.send("param show TLC_RATE_HZ")
+        mp.expect(r"TLC_RATE_HZ\s+200(\.0)?\s*$", 5.0, pos)
+        pos = mp.send("mode")
+        mp.expect(r"Available modes:\s+HOLD, MISSION, RETURN, LAND, TAKEOFF, OFFBOARD", 5.0, pos)
+        pos = mp.send("mode MISSION")  # no mission: refused, and said why
+        mp.expect(r"Mission mode refused: no mission", 5.0, pos)
+        mp.expect(r"DO_SET_MODE: DENIED", 5.0, pos)
+        pos = mp.send("mode HOLD")
+        mp.expect(r"DO_SET_MODE: ACCEPTED", 5.0, pos)
+        assert "fence breach" not in mp.text.lower()
+        assert "Mode(" not in mp.text

@@ -34,7 +34,7 @@ try:
     from mavsdk.asyncio.plugins.action import ActionAsync
     from mavsdk.asyncio.plugins.mission_raw import MissionItem as RawItem
     from mavsdk.asyncio.plugins.mission_raw import MissionRawAsync
-    from mavsdk.asyncio.plugins.telemetry import LandedState, TelemetryAsync
+    from mavsdk.asyncio.plugins.telemetry import FlightMode, LandedState, TelemetryAsync
 except Exception as exc:  # the wheel's native library cannot load on this machine
     pytest.skip(f"MAVSDK cannot run here: {exc}", allow_module_level=True)
 
@@ -210,3 +210,81 @@ def test_mavsdk_sees_the_mission_finished(seen: Seen) -> None:
 def _deg_e7(wp: tuple[float, float, float]) -> tuple[int, int]:
     g = nwu_to_geo(HOME, (wp[0], wp[1], 0.0))
     return round(g.lat_deg * 1e7), round(g.lon_deg * 1e7)
+
+
+@dataclass
+class Actions:
+    took_off_to_m: float = 0.0
+    modes: list[Any] = field(default_factory=list)
+    offboard_reached_m: float = math.inf
+    home_dist_after_rtl_m: float = math.inf
+    landed_after: bool = False
+
+
+async def fly_actions(api_port: int, out: Actions) -> None:
+    """What a MAVSDK script does: take off, hold, offboard, return to launch, land."""
+    from mavsdk.asyncio.plugins.offboard import OffboardAsync, PositionNedYaw
+
+    async with Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION)) as sdk:
+        await sdk.add_any_connection(f"udpin://127.0.0.1:{api_port}")
+        system = await sdk.first_autopilot(timeout_s=START_S)
+        assert system is not None
+        tel, action, offboard = TelemetryAsync(system), ActionAsync(system), OffboardAsync(system)
+        await first(tel.subscribe_position(), 10.0)
+
+        async def until(pred: Any, timeout_s: float) -> Any:
+            async def wait() -> Any:
+                async for pv in tel.subscribe_position_velocity_ned():
+                    if pred(pv):
+                        return pv
+                return None
+
+            return await asyncio.wait_for(wait(), timeout_s)
+
+        async def mode() -> Any:
+            return FlightMode(int(await first(tel.subscribe_flight_mode(), 5.0)))
+
+        await action.set_takeoff_altitude(3.0)
+        await action.arm()
+        await action.takeoff()
+        pv = await until(lambda pv: -pv.position.down_m > 2.85, 30.0)
+        out.took_off_to_m = -pv.position.down_m
+        await asyncio.sleep(3.0)
+        out.took_off_to_m = -(await first(tel.subscribe_position_velocity_ned(), 5.0)).position.down_m
+        await action.hold()
+        await asyncio.sleep(1.0)
+        out.modes.append(await mode())
+        # offboard: a setpoint before start, as MAVSDK requires, then 2 m north
+        target = PositionNedYaw(2.0, 0.0, -3.0, 0.0)
+        await offboard.set_position_ned(target)
+        await offboard.start()
+        for _ in range(80):  # 8 s of setpoints at 10 Hz (a 2 m step: the TLC overshoots it,
+            await offboard.set_position_ned(target)  # then settles)
+            await asyncio.sleep(0.1)
+        out.modes.append(await mode())
+        pv = await first(tel.subscribe_position_velocity_ned(), 5.0)
+        out.offboard_reached_m = math.dist((pv.position.north_m, pv.position.east_m, pv.position.down_m),
+                                           (2.0, 0.0, -3.0))  # fmt: skip
+        await offboard.stop()
+        await action.return_to_launch()
+        await asyncio.sleep(0.5)
+        out.modes.append(await mode())
+        pv = await until(lambda pv: -pv.position.down_m < 0.1, 60.0)
+        out.home_dist_after_rtl_m = math.hypot(pv.position.north_m, pv.position.east_m)
+        await action.land()  # already down: accepted, and the landing ends disarmed
+        out.landed_after = True
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(240)
+def test_mavsdk_takeoff_hold_offboard_rtl_and_land() -> None:
+    out = Actions()
+    with running_vehicle() as api:
+        asyncio.run(asyncio.wait_for(fly_actions(api, out), 180.0))
+    print(f"MAVSDK actions: took off to {out.took_off_to_m:.2f} m; modes {out.modes}; offboard "
+          f"{out.offboard_reached_m:.2f} m from its setpoint; RTL ended {out.home_dist_after_rtl_m:.2f} m "
+          f"from home")  # fmt: skip
+    assert abs(out.took_off_to_m - 3.0) < 0.3
+    assert out.modes == [FlightMode.HOLD, FlightMode.OFFBOARD, FlightMode.RETURN_TO_LAUNCH]
+    assert out.offboard_reached_m < 0.5
+    assert out.home_dist_after_rtl_m < 1.0 and out.landed_after

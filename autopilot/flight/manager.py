@@ -94,8 +94,8 @@ class FlightManager:
         return Mode.AUTO if self.mission_on_arm else self.flight.mode
 
     def armable(self) -> bool:
-        f = self.flight
-        return f.armed or bool(self._mission()) or f.mode is Mode.GUIDED or f.trajectory is not None
+        """Whether arming would be accepted now (it always is: see ``_arm``)."""
+        return True
 
     def mission_state(self) -> MissionState:
         if self._mission_traj is not None:
@@ -126,10 +126,10 @@ class FlightManager:
         return reply
 
     def _arm(self, cmd: c.Arm) -> c.Reply:
+        # Arming needs no plan: an armed vehicle with nothing to fly holds where it is (on
+        # the ground its integrators are held), so a take-off can follow (MAVSDK, QGC).
         f = self.flight
         mission = self._mission()
-        if not (mission or f.mode is Mode.GUIDED or f.trajectory is not None):
-            return c.Reply(c.Result.DENIED, "Arming refused: no mission or trajectory")
         f.armed = True
         if self.mission_on_arm and mission:
             # mission mode was selected while disarmed (as PX4): it starts now, so the

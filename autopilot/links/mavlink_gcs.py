@@ -5,9 +5,8 @@ SITL: one sends to 127.0.0.1:14550 (ground stations: QGroundControl, MAVProxy), 
 127.0.0.1:14540 (API clients: MAVSDK); each answers whoever talks to it. It runs as a tick
 hook of the runner, so every handler sees the runner's time ``t_s`` and never a clock.
 
-Custom modes use PX4's numbering (custom_mode = main << 16 | sub << 24; DO_SET_MODE
-param2 = main, param3 = sub) so that MAVSDK's and QGroundControl's mode requests work;
-the vehicle still reports MAV_AUTOPILOT_GENERIC, not PX4.
+Modes: :mod:`heli_common.mavlink.modes` (the vehicle's own custom-mode numbers, the
+standard modes microservice, DO_SET_MODE, DO_SET_STANDARD_MODE and SET_MODE).
 """
 
 from __future__ import annotations
@@ -25,6 +24,7 @@ from autopilot.flight import commands as c
 from autopilot.flight.manager import FlightManager, LandedState, MissionState
 from autopilot.flight.modes import Mode
 from autopilot.flight_log import heartbeat
+from autopilot.links.mavlink_modes import COMMAND, REPORTED
 from autopilot.mission.server import MissionServer
 from autopilot.params_table import ParamTable
 from autopilot.trajectory.waypoints import FlightLimits
@@ -33,6 +33,7 @@ from heli_common import frames
 from heli_common.defaults import HOME, ports
 from heli_common.geo import GeoPoint, nwu_to_geo
 from heli_common.kinematics import rot_body_to_earth
+from heli_common.mavlink import modes as wm
 from heli_common.mavlink.mission_items import MissionItem
 from heli_common.mavlink.udp import LOOPBACK, Address, MavlinkUdp, Message, mavlink2
 from heli_common.ratelog import RateLimitedLog
@@ -41,18 +42,6 @@ from heli_common.state import EULER, POS, VEL, FloatArray
 log = logging.getLogger("autopilot.gcs")
 m2 = mavlink2
 PORTS = ports()
-
-# PX4 custom main/sub modes (see the module docstring)
-PX4_MAIN_AUTO, PX4_MAIN_OFFBOARD = 4, 6
-PX4_SUB_LOITER, PX4_SUB_MISSION, PX4_SUB_RTL, PX4_SUB_LAND, PX4_SUB_TAKEOFF = 3, 4, 5, 6, 2
-MODE_TO_PX4: dict[Mode, tuple[int, int]] = {
-    Mode.IDLE: (PX4_MAIN_AUTO, PX4_SUB_LOITER),
-    Mode.HOLD: (PX4_MAIN_AUTO, PX4_SUB_LOITER),
-    Mode.AUTO: (PX4_MAIN_AUTO, PX4_SUB_MISSION),
-    Mode.RTL: (PX4_MAIN_AUTO, PX4_SUB_RTL),
-    Mode.LAND: (PX4_MAIN_AUTO, PX4_SUB_LAND),
-    Mode.GUIDED: (PX4_MAIN_OFFBOARD, 0),
-}
 
 FTP_OPCODE_NAK = 129
 FTP_ERR_UNKNOWN_COMMAND = 7
@@ -93,18 +82,21 @@ DEFAULT_RATES_HZ: dict[int, float] = {
     m2.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED: 10.0,
     m2.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW: 10.0,
     m2.MAVLINK_MSG_ID_MISSION_CURRENT: 1.0,
+    m2.MAVLINK_MSG_ID_VFR_HUD: 4.0,
+    wm.MSG_ID_CURRENT_MODE: 1.0,
+    wm.MSG_ID_AVAILABLE_MODES_MONITOR: 0.2,
 }
 
 CAPABILITIES = (
     m2.MAV_PROTOCOL_CAPABILITY_MISSION_INT
     | m2.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT
-    | m2.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
     | m2.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
     | m2.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
     | m2.MAV_PROTOCOL_CAPABILITY_MAVLINK2
-    | m2.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
+    | m2.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST  # alone: see autopilot.params_table
 )
 FORCE_DISARM_MAGIC = 21196
+RELATIVE_ALT_FRAMES = (m2.MAV_FRAME_GLOBAL_RELATIVE_ALT, m2.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT)
 MAX_DATAGRAMS_PER_POLL = 32  # per link and control tick (3200/s at 100 Hz)
 MAV_RESULT = {
     c.Result.ACCEPTED: m2.MAV_RESULT_ACCEPTED, c.Result.DENIED: m2.MAV_RESULT_DENIED,
@@ -144,6 +136,7 @@ class _Pending:
     link: MavlinkUdp | None = None  # where the ACK goes (None: nothing to answer)
     addr: Address | None = None
     msg: Message | None = None
+    say: bool = False  # no ACK, but the operator hears the reply's text (SET_MODE)
 
 
 class GcsService:
@@ -189,6 +182,7 @@ class GcsService:
         self.handler_errors = 0
         self._pending: list[_Pending] = []
         self._params_changed = False
+        self._cmd_frame: int | None = None  # COMMAND_INT's frame while its handler runs
         if manager is not None:
             self.attach(manager)
 
@@ -288,22 +282,14 @@ class GcsService:
         if msg_id == m2.MAVLINK_MSG_ID_HEARTBEAT:
             hb = heartbeat(armed)
             mode = mgr.mode if mgr else Mode.IDLE
-            main, sub = MODE_TO_PX4[mode]
-            hb.custom_mode = (main << 16) | (sub << 24)
+            hb.custom_mode = REPORTED[mode].custom_mode
             if mode is Mode.AUTO:
                 hb.base_mode |= m2.MAV_MODE_FLAG_AUTO_ENABLED
             if mode is Mode.GUIDED:
                 hb.base_mode |= m2.MAV_MODE_FLAG_GUIDED_ENABLED
             return hb
         if msg_id == m2.MAVLINK_MSG_ID_SYS_STATUS:
-            sensors = (m2.MAV_SYS_STATUS_SENSOR_3D_GYRO | m2.MAV_SYS_STATUS_SENSOR_3D_ACCEL
-                       | m2.MAV_SYS_STATUS_SENSOR_GPS)  # fmt: skip
-            # pre-arm check: healthy when arming would be accepted (MAVSDK is_armable, QGC)
-            prearm = m2.MAV_SYS_STATUS_PREARM_CHECK
-            healthy = sensors | (prearm if mgr is not None and mgr.armable() else 0)
-            return m2.MAVLink_sys_status_message(
-                sensors | prearm, sensors | prearm, healthy, 100, 0xFFFF, -1, -1, 0, 0, 0, 0, 0, 0
-            )
+            return self._sys_status()
         if msg_id in (m2.MAVLINK_MSG_ID_ATTITUDE, m2.MAVLINK_MSG_ID_LOCAL_POSITION_NED):
             att, lpn = telemetry.attitude_and_position(t_us, x)
             return att if msg_id == m2.MAVLINK_MSG_ID_ATTITUDE else lpn
@@ -311,6 +297,12 @@ class GcsService:
         geo = nwu_to_geo(home, x[POS].tolist())
         lat, lon = int(round(geo.lat_deg * 1e7)), int(round(geo.lon_deg * 1e7))
         heading = math.degrees(-x[EULER][2]) % 360.0  # NWU yaw -> compass heading
+        if msg_id == wm.MSG_ID_CURRENT_MODE:
+            return wm.current_mode(REPORTED[mgr.mode if mgr else Mode.IDLE])
+        if msg_id == wm.MSG_ID_AVAILABLE_MODES_MONITOR:
+            return wm.available_modes_monitor()
+        if msg_id == m2.MAVLINK_MSG_ID_VFR_HUD:
+            return self._vfr_hud()
         if msg_id == m2.MAVLINK_MSG_ID_GLOBAL_POSITION_INT:
             return m2.MAVLink_global_position_int_message(
                 t_ms, lat, lon, int(geo.alt_amsl_m * 1000), int(x[POS][2] * 1000),
@@ -348,6 +340,37 @@ class GcsService:
             )
         return None  # not built by this vehicle (PROTOCOL_VERSION: not in pymavlink's common)
 
+    def _sys_status(self) -> Message:
+        """What exists on this vehicle: the plant's state link stands in for the IMU, the
+        attitude estimate and GPS (unhealthy while the plant is silent), the servo outputs,
+        and the pre-arm check (healthy when arming would be accepted: MAVSDK is_armable,
+        QGC). There is no geofence: its bit is set in health only, which MAVLink defines as
+        "no error" (MAVProxy reads a clear geofence health bit as a breach)."""
+        mgr = self.manager
+        state_link = (m2.MAV_SYS_STATUS_SENSOR_3D_GYRO | m2.MAV_SYS_STATUS_SENSOR_3D_ACCEL
+                      | m2.MAV_SYS_STATUS_AHRS | m2.MAV_SYS_STATUS_SENSOR_GPS)  # fmt: skip
+        outputs = m2.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS
+        prearm = m2.MAV_SYS_STATUS_PREARM_CHECK
+        present = state_link | outputs | prearm
+        healthy = outputs | m2.MAV_SYS_STATUS_GEOFENCE
+        if mgr is None or not mgr.plant_lost:
+            healthy |= state_link
+        if mgr is not None and mgr.armable():
+            healthy |= prearm
+        return m2.MAVLink_sys_status_message(present, present, healthy, 100, 0xFFFF, -1, -1,
+                                             0, 0, 0, 0, 0, 0)  # fmt: skip
+
+    def _vfr_hud(self) -> Message:
+        """The HUD every ground station shows: speeds, heading, collective as throttle."""
+        vel_ned = self._vel_ned()
+        ground = math.hypot(vel_ned[0], vel_ned[1])
+        heading = int(round(math.degrees(-self._x[EULER][2]))) % 360  # NWU yaw -> compass
+        lo, hi = self.limits[0]
+        throttle = int(round(100.0 * min(max((self._u[0] - lo) / (hi - lo), 0.0), 1.0)))
+        alt = self.cfg.home.alt_amsl_m + float(self._x[POS][2])
+        # no wind in this world yet: the airspeed is the ground speed
+        return m2.MAVLink_vfr_hud_message(ground, ground, heading, throttle, alt, -vel_ned[2])
+
     def _vel_ned(self) -> tuple[float, float, float]:
         e = self._x[EULER]
         rt = rot_body_to_earth(e[0], e[1], e[2])
@@ -366,6 +389,8 @@ class GcsService:
                 link.send(*out, to=addr)
         elif kind == "SET_POSITION_TARGET_LOCAL_NED":
             self._on_setpoint(msg)
+        elif kind == "SET_MODE":
+            self._on_set_mode(msg)
         elif kind == "FILE_TRANSFER_PROTOCOL":
             link.send(ftp_nak(msg), to=addr)
         elif kind == "TIMESYNC" and msg.tc1 == 0:
@@ -414,8 +439,10 @@ class GcsService:
         p = [msg.param1, msg.param2, msg.param3, msg.param4]
         if msg.get_type() == "COMMAND_INT":
             p += [msg.x, msg.y, msg.z]
+            self._cmd_frame = int(msg.frame)
         else:
             p += [msg.param5, msg.param6, msg.param7]
+            self._cmd_frame = None
         cmd = msg.command
         handler = self._COMMANDS.get(cmd)
         if handler is None:
@@ -454,9 +481,12 @@ class GcsService:
             except Exception:
                 self._handler_error(f"flight command {type(p.command).__name__}")
                 reply = c.Reply(c.Result.FAILED)
-            if p.msg is None:  # a setpoint: no answer on the wire
+            if p.msg is None:  # a setpoint or SET_MODE: no ACK on the wire
                 if not reply.accepted:
-                    self.refused += 1  # this vehicle follows positions; velocity-only is not flown
+                    self.refused += 1  # e.g. a velocity-only setpoint: positions are flown
+                if p.say and reply.text:
+                    ok = reply.accepted
+                    self.statustext(m2.MAV_SEVERITY_INFO if ok else m2.MAV_SEVERITY_WARNING, reply.text)
                 continue
             assert p.link is not None and p.addr is not None
             self._answer(p.link, p.addr, p.msg, MAV_RESULT[reply.result], reply.text)
@@ -481,7 +511,21 @@ class GcsService:
         return self._fly(c.StartMission(first))
 
     def _cmd_takeoff(self, p: list[float], link: MavlinkUdp, addr: Address) -> Answer:
-        alt = p[6] - self.cfg.home.alt_amsl_m if math.isfinite(p[6]) else None
+        """param7 is the altitude; NaN means the default. In COMMAND_INT it is in the
+        command's frame (AMSL for GLOBAL, above home for GLOBAL_RELATIVE_ALT, up = -z for
+        LOCAL_NED); in COMMAND_LONG, which has no frame, above home, as ArduPilot reads it
+        and as MAVSDK sends it to a vehicle that is not PX4."""
+        if not math.isfinite(p[6]):
+            return self._fly(c.Takeoff(None))
+        frame = self._cmd_frame
+        if frame in (m2.MAV_FRAME_GLOBAL, m2.MAV_FRAME_GLOBAL_INT):
+            alt = p[6] - self.cfg.home.alt_amsl_m
+        elif frame == m2.MAV_FRAME_LOCAL_NED:
+            alt = -p[6]
+        elif frame is None or frame in RELATIVE_ALT_FRAMES:
+            alt = p[6]
+        else:
+            return m2.MAV_RESULT_DENIED, f"Takeoff refused: frame {frame}"
         return self._fly(c.Takeoff(alt))
 
     def _cmd_land(self, p: list[float], link: MavlinkUdp, addr: Address) -> Answer:
@@ -491,22 +535,38 @@ class GcsService:
         return self._fly(c.ReturnToLaunch())
 
     def _cmd_set_mode(self, p: list[float], link: MavlinkUdp, addr: Address) -> Answer:
-        main, sub = int(p[1]) if math.isfinite(p[1]) else -1, int(p[2]) if math.isfinite(p[2]) else 0
-        modes: dict[tuple[int, int], c.Command] = {
-            (PX4_MAIN_AUTO, PX4_SUB_MISSION): c.SelectMission(),
-            (PX4_MAIN_AUTO, PX4_SUB_LOITER): c.Hold(),
-            (PX4_MAIN_AUTO, PX4_SUB_RTL): c.ReturnToLaunch(),
-            (PX4_MAIN_AUTO, PX4_SUB_LAND): c.Land(),
-            (PX4_MAIN_AUTO, PX4_SUB_TAKEOFF): c.Takeoff(),
-        }
-        cmd = modes.get((main, sub))
-        if main == PX4_MAIN_OFFBOARD:
-            cmd = c.StartOffboard()
-        if cmd is None:
-            return m2.MAV_RESULT_DENIED, f"Mode {main}/{sub} not supported"
-        return self._fly(cmd)
+        mode = wm.from_do_set_mode(p[1], p[2]) if math.isfinite(p[1]) and math.isfinite(p[2]) else None
+        if mode is None:
+            return m2.MAV_RESULT_DENIED, f"Mode {p[1]:g}/{p[2]:g} not supported"[:50]
+        return self._fly(COMMAND[mode]())
+
+    def _cmd_set_standard_mode(self, p: list[float], link: MavlinkUdp, addr: Address) -> Answer:
+        mode = wm.BY_STANDARD.get(int(p[0])) if math.isfinite(p[0]) else None
+        if mode is None:  # the microservice's answer for a standard mode the vehicle lacks
+            return m2.MAV_RESULT_FAILED, f"Standard mode {p[0]:g} not supported"[:50]
+        return self._fly(COMMAND[mode]())
+
+    def _on_set_mode(self, msg: Message) -> None:
+        """The SET_MODE message (no ACK): the whole custom mode."""
+        if msg.target_system not in (0, 1):
+            return
+        mode = wm.BY_CUSTOM.get(int(msg.custom_mode))
+        if mode is None:
+            self.refused += 1
+            self.statustext(m2.MAV_SEVERITY_WARNING, f"Mode {msg.custom_mode} not supported")
+            return
+        self._pending.append(_Pending(COMMAND[mode](), say=True))
 
     def _cmd_request_message(self, p: list[float], link: MavlinkUdp, addr: Address) -> tuple[int, str]:
+        if math.isfinite(p[0]) and int(p[0]) == wm.MSG_ID_AVAILABLE_MODES:
+            # param2: the mode's index (1-based), 0 for all of them
+            n = len(wm.MODES)
+            index = int(p[1]) if math.isfinite(p[1]) else -1
+            if not 0 <= index <= n:
+                return m2.MAV_RESULT_DENIED, ""
+            for i in range(1, n + 1) if index == 0 else (index,):
+                link.send(wm.available_modes(i), to=addr)
+            return m2.MAV_RESULT_ACCEPTED, ""
         msg = self.build(int(p[0])) if math.isfinite(p[0]) else None
         if msg is None:
             return m2.MAV_RESULT_DENIED, ""
@@ -544,6 +604,7 @@ class GcsService:
         m2.MAV_CMD_NAV_LAND: _cmd_land,
         m2.MAV_CMD_NAV_RETURN_TO_LAUNCH: _cmd_rtl,
         m2.MAV_CMD_DO_SET_MODE: _cmd_set_mode,
+        wm.CMD_DO_SET_STANDARD_MODE: _cmd_set_standard_mode,
         m2.MAV_CMD_REQUEST_MESSAGE: _cmd_request_message,
         m2.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: _cmd_capabilities,
         m2.MAV_CMD_SET_MESSAGE_INTERVAL: _cmd_set_interval,

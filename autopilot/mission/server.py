@@ -67,7 +67,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import ClassVar
 
-from pymavlink.dialects.v20 import common as mavlink
+from pymavlink.dialects.v20 import development as mavlink
 
 from autopilot.mission.checks import DEFAULT_LIMITS, ItemLimits, check_item
 from heli_common.geo import GeoPoint

@@ -15,7 +15,7 @@ import dataclasses
 import math
 from dataclasses import dataclass
 
-from pymavlink.dialects.v20 import common as mavlink
+from pymavlink.dialects.v20 import development as mavlink
 
 from heli_common.geo import GeoPoint, geo_to_ned_m
 from heli_common.mavlink.udp import Message

@@ -20,7 +20,9 @@ from pathlib import Path
 from typing import Any, BinaryIO, Protocol
 
 os.environ.setdefault("MAVLINK20", "1")
-from pymavlink.dialects.v20 import common as mavlink2
+# the development dialect: common.xml plus the standard modes microservice (AVAILABLE_MODES,
+# CURRENT_MODE, DO_SET_STANDARD_MODE) that pymavlink 2.4.50 has only there
+from pymavlink.dialects.v20 import development as mavlink2
 
 from heli_common.closing import Closing
 

@@ -11,7 +11,7 @@ import struct
 from pathlib import Path
 
 import numpy as np
-from pymavlink.dialects.v20 import common as mavlink
+from pymavlink.dialects.v20 import development as mavlink
 
 PARAM_INT32: int = mavlink.MAV_PARAM_TYPE_INT32
 PARAM_REAL32: int = mavlink.MAV_PARAM_TYPE_REAL32
