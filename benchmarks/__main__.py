@@ -6,6 +6,7 @@ Exit status 0 always (the table is a report; the ``ok`` column flags a missed ta
 
 from __future__ import annotations
 
+import argparse
 import importlib
 import math
 import sys
@@ -49,10 +50,28 @@ def table(groups: list[tuple[str, list[Row]]]) -> str:
     return "\n".join([render(header), sep, *(render(line) for line in lines)])
 
 
+def parse(argv: list[str]) -> argparse.Namespace:
+    p = argparse.ArgumentParser(
+        prog="python -m benchmarks",
+        description="Run the benchmarks and print one table (exit status 0: the ok column flags "
+                    "a missed target). Groups: " + ", ".join(t for t, _ in REGISTRY) + ".",
+    )  # fmt: skip
+    p.add_argument("groups", nargs="*", metavar="GROUP",
+                   help="run only the groups whose title contains one of these words (default: all)")
+    return p.parse_args(argv)
+
+
 def main(argv: list[str]) -> int:
     for mod in MODULES:
         importlib.import_module(mod)
-    wanted = [a.lower() for a in argv]
+    args = parse(argv)
+    wanted = [a.lower() for a in args.groups]
+    known = [t for t, _ in REGISTRY]
+    unknown = [w for w in wanted if not any(w in t.lower() for t in known)]
+    if unknown:
+        print(f"python -m benchmarks: no group matches {', '.join(unknown)}; groups: {', '.join(known)}",
+              file=sys.stderr)  # fmt: skip
+        return 2
     groups: list[tuple[str, list[Row]]] = []
     t0 = time.perf_counter()
     for title, fn in REGISTRY:

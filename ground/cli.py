@@ -30,7 +30,7 @@ from ground.log import TlogError, tlog_columns, write_csv
 from heli_common import cli_args as arg
 from heli_common.defaults import ports
 from heli_common.mavlink.udp import TlogWriter, mavlink2
-from heli_common.mavlink.wire import SigningKeyError, read_signing_key
+from heli_common.mavlink.wire import SigningKeyError, f32_text, read_signing_key
 from heli_common.process import run_main
 
 PROG = "heli-ground"
@@ -288,7 +288,7 @@ def _param_get(args: argparse.Namespace) -> int:
     with _client(args) as gc:
         gc.connect(args.connect_timeout_s)
         pv = gc.param_get(args.name)
-    print(f"{pv.name} {pv.value:.9g}")
+    print(f"{pv.name} {f32_text(pv.value)}")
     return 0
 
 
@@ -298,8 +298,8 @@ def _param_set(args: argparse.Namespace) -> int:
         res = gc.param_set(args.name, args.value)
     if not res.accepted:
         why = f": {res.reason}" if res.reason else ""
-        raise GroundError(f"{args.name} = {args.value:g} refused{why} (still {res.value.value:.9g})")
-    print(f"{res.value.name} {res.value.value:.9g}")
+        raise GroundError(f"{args.name} = {args.value:g} refused{why} (still {f32_text(res.value.value)})")
+    print(f"{res.value.name} {f32_text(res.value.value)}")
     return 0
 
 
@@ -308,7 +308,7 @@ def _param_dump(args: argparse.Namespace) -> int:
         gc.connect(args.connect_timeout_s)
         params = gc.param_list()
     # MAVProxy's "param save" layout (NAME VALUE), so "param load" reads it back
-    text = "".join(f"{pv.name:<16} {pv.value:.9g}\n" for pv in params.values())
+    text = "".join(f"{pv.name:<16} {f32_text(pv.value)}\n" for pv in params.values())
     if args.out is not None:
         args.out.write_text(text)
         print(f"wrote {args.out} ({len(params)} parameters)")

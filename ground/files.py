@@ -56,6 +56,7 @@ from heli_common.config import ConfigError
 from heli_common.geo import GeoPoint
 from heli_common.mavlink import mission_items as ms
 from heli_common.mavlink.mission_items import MissionItem
+from heli_common.mavlink.wire import f32_text
 
 WPL_HEADER = "QGC WPL 110"
 WPL_COLUMNS = 12
@@ -176,13 +177,6 @@ def _xy_from_file(frame: int, x: float, y: float) -> tuple[int, int]:
     return out[0], out[1]
 
 
-def _fmt32(v: float) -> str:
-    """Shortest text that reads back to the same float32 (params and z are float32 on the wire)."""
-    if math.isnan(v):
-        return "nan"
-    return str(np.format_float_positional(np.float32(v), unique=True, trim="-"))
-
-
 def _fmt64(v: float) -> str:
     """Local x/y (metres = int / 1e4): repr reads back to the same double, so round(v * 1e4) too."""
     return "nan" if math.isnan(v) else repr(float(v))
@@ -286,9 +280,9 @@ def write_waypoints(path: Path | str, items: Sequence[MissionItem], home: GeoPoi
         is_global = it.frame in ms.GLOBAL_FRAMES
         cols = [
             str(i), str(int(it.current if i == 0 else 0)), str(it.frame), str(it.command),
-            *(_fmt32(v) for v in (it.param1, it.param2, it.param3, it.param4)),
+            *(f32_text(v) for v in (it.param1, it.param2, it.param3, it.param4)),
             _fmt_deg(x) if is_global else _fmt64(x), _fmt_deg(y) if is_global else _fmt64(y),
-            _fmt32(it.z), str(int(it.autocontinue)),
+            f32_text(it.z), str(int(it.autocontinue)),
         ]  # fmt: skip
         out.append("\t".join(cols))
     Path(path).write_text("\n".join(out) + "\n", encoding="utf-8")

@@ -155,8 +155,9 @@ def serve(opts: UpOptions, stop_after_s: float | None = None) -> None:
     procs = [(name, spawn(cmd, name, logs / f"{name}.log" if logs else None, echo=True))
              for name, cmd in up_commands(opts)]  # fmt: skip
     print(
-        f"heli-sitl up: vehicle on UDP 127.0.0.1:{opts.gcs_port} (ground stations) and "
-        f":{opts.api_port} (API clients); Ctrl-C to stop",
+        f"heli-sitl up: the vehicle sends to UDP 127.0.0.1:{opts.gcs_port} (ground stations) from "
+        f":{opts.local_gcs_port} and to :{opts.api_port} (API clients) from :{opts.local_api_port}; "
+        "Ctrl-C to stop",
         flush=True,
     )
     t0 = time.monotonic()

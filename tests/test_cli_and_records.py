@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import signal
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -118,3 +119,14 @@ def test_the_launcher_exit_status_names_a_failed_child(tmp_path: Path) -> None:
         up = spawn_up(ports)
         assert up.wait(timeout=120) == 1
     assert "autopilot" in up.last_error_line() and "busy" in up.last_error_line()
+
+
+def test_the_benchmark_runner_answers_help_and_unknown_groups() -> None:
+    root = Path(__file__).resolve().parent.parent
+    helped = subprocess.run([sys.executable, "-m", "benchmarks", "--help"], cwd=root, capture_output=True,
+                            text=True, timeout=120)  # fmt: skip
+    assert helped.returncode == 0 and "usage: python -m benchmarks" in helped.stdout
+    unknown = subprocess.run([sys.executable, "-m", "benchmarks", "nosuchgroup"], cwd=root,
+                             capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert unknown.returncode == 2 and "no group matches nosuchgroup" in unknown.stderr
+    assert "Traceback" not in unknown.stderr

@@ -367,12 +367,14 @@ def test_heli_ground_cli_params_upload_and_failures(
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "refused" in err[0] and f"still {before}" in err[0], err
     assert cli.main(["params", "set", "TLC_DIFF_Z", "0.8", *port]) == 0
-    assert capsys.readouterr().out.split() == ["TLC_DIFF_Z", "0.800000012"]  # float32 on the wire
+    # float32 on the wire, printed as the shortest decimal that reads back to it
+    assert capsys.readouterr().out.split() == ["TLC_DIFF_Z", "0.8"]
     assert cli.main(["params", "set", "TLC_DIFF_Z", before, *port]) == 0
     capsys.readouterr()
     assert cli.main(["params", "dump", *port]) == 0
     dump = capsys.readouterr().out.splitlines()
     assert len(dump) == N_PARAMS and dump[0].split()[0] == "TLC_L1_W_X"
+    assert "0.707000017" not in "\n".join(dump) and "TLC_L1_Z_X       0.707" in dump
     good = tmp_path / "ok.waypoints"
     write_waypoints(good, square_mission(), HOME)
     assert cli.main(["upload", str(good), *port]) == 0

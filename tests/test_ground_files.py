@@ -302,3 +302,13 @@ def test_trajectory_csv_needs_two_samples_and_known_extension(tmp_path: Path) ->
         files.load_mission(write(tmp_path, "m.kml", ""))
     with pytest.raises(FileFormatError, match="cannot read"):
         files.load_mission(tmp_path / "missing.waypoints")
+
+
+def test_the_shipped_example_missions_load_and_agree() -> None:
+    """The README flies configs/missions/square.waypoints; the .plan is the same mission."""
+    from heli_common.config import CONFIG_DIR
+
+    wp = files.load_mission(CONFIG_DIR / "missions" / "square.waypoints")
+    plan = files.load_mission(CONFIG_DIR / "missions" / "square.plan")
+    assert [(i.command, i.x, i.y, i.z) for i in wp.items] == [(i.command, i.x, i.y, i.z) for i in plan.items]
+    assert [i.command for i in wp.items] == [ms.CMD_TAKEOFF, *[ms.CMD_WAYPOINT] * 3, ms.CMD_LAND]

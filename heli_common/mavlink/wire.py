@@ -27,6 +27,14 @@ def f32(value: float) -> float:
         return float(np.float32(value))
 
 
+def f32_text(value: float) -> str:
+    """The shortest decimal that reads back to the same float32 (``0.707`` where
+    ``%.9g`` prints ``0.707000017``): what a float32 on the wire was meant to say."""
+    if math.isnan(value):
+        return "nan"
+    return str(np.format_float_positional(np.float32(value), unique=True, trim="-"))
+
+
 def encode_param(value: float, param_type: int, bytewise: bool) -> float:
     """The float ``param_value`` that carries ``value`` of ``param_type``.
 
