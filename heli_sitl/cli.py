@@ -91,23 +91,24 @@ def _run(args: argparse.Namespace) -> int:
     except PortBusyError as exc:
         print(f"heli-sitl: {exc.strerror}", file=sys.stderr)
         return Exit.PORT_BUSY
-    servo = with_overrides(load_servo_link(args.links), args.servo_link, args.can_bus, args.actuator_ids)
-    can = None
-    servo_in = None
-    if servo.link == "can":
-        from heli_sitl.plant.can_endpoint import CanServoEndpoint
-        from heli_sitl.plant.servo_inputs import CanServoInput
+    with link:  # closed however this ends, and so is the CAN bus: no shutdown warnings
+        servo = with_overrides(load_servo_link(args.links), args.servo_link, args.can_bus, args.actuator_ids)
+        can = None
+        servo_in = None
+        if servo.link == "can":
+            from heli_sitl.plant.can_endpoint import CanServoEndpoint
+            from heli_sitl.plant.servo_inputs import CanServoInput
 
-        can = CanServoEndpoint(servo.can_bus, limits=airframe.limits, actuator_ids=servo.actuator_ids,
-                               timeout_s=servo.timeout_s)  # fmt: skip
-        servo_in = CanServoInput(can)
-    try:
-        with link:
+            can = CanServoEndpoint(servo.can_bus, limits=airframe.limits, actuator_ids=servo.actuator_ids,
+                                   timeout_s=servo.timeout_s)  # fmt: skip
+            servo_in = CanServoInput(can)
+        try:
             stats = PlantServer(plant, link, cfg, servo_in).run(stop)
-    finally:
-        if can is not None:
-            stats.extra["can"] = dict(can.stats)
-            can.close()
+            if can is not None:
+                stats.extra["can"] = dict(can.stats)
+        finally:
+            if can is not None:
+                can.close()
     if args.verbose:
         print(json.dumps({**stats.__dict__, "link": link.stats.as_dict()}), file=sys.stderr)
     return 0

@@ -33,6 +33,7 @@ from heli_common.can.dronecan_codec import (
     HEALTH_OK,
     HEALTH_WARNING,
     MODE_OPERATIONAL,
+    ArmingStatusEncoder,
     ArrayCommandEncoder,
     CanFrame,
     NodeStatusEncoder,
@@ -58,7 +59,9 @@ SENDER_STAT_KEYS = (
     "nonfinite_sent",  # commands with a NaN/inf value (the servo side refuses them)
     "rx_discarded",  # frames drained from this node's own receive queue
     "rx_errors",
+    "arming_status_sent",  # uavcan.equipment.safety.ArmingStatus, on change and at 2 Hz
 )
+ARMING_STATUS_PERIOD_S = 0.5
 
 
 class CanServoSender(Closing):
@@ -84,6 +87,9 @@ class CanServoSender(Closing):
             raise ValueError("status_period_s must be a positive number")
         self.commands = ArrayCommandEncoder(node_id, actuator_ids)
         self.status = NodeStatusEncoder(node_id)
+        self.arming = ArmingStatusEncoder(node_id)
+        self._armed_sent: bool | None = None
+        self._next_arming_s = -math.inf
         self.node_id = node_id
         self.actuator_ids = self.commands.actuator_ids
         self.status_period_s = float(status_period_s)
@@ -95,15 +101,21 @@ class CanServoSender(Closing):
         self._owns_bus = not isinstance(bus, CanBus)
         self.bus = bus if isinstance(bus, CanBus) else open_bus(bus)
 
-    def send(self, pitches_rad: npt.ArrayLike, t_s: float) -> bool:
-        """Send this tick's pitches [rad] (and NodeStatus when due); True if all of the
-        command's frames went out. Never raises on a bus fault."""
+    def send(self, pitches_rad: npt.ArrayLike, t_s: float, armed: bool | None = None) -> bool:
+        """Send this tick's pitches [rad] (and NodeStatus when due; ArmingStatus, when
+        ``armed`` is given, before the command whenever it changes and at 2 Hz); True if
+        all of the command's frames went out. Never raises on a bus fault."""
         u = np.asarray(pitches_rad, dtype=float).reshape(-1)
         if u.shape != (N_PITCH,):
             raise ValueError(f"need {N_PITCH} pitches, got shape {np.shape(pitches_rad)}")
         if self.start_s is None:
             self.start_s = t_s
         self._drain(t_s)
+        if armed is not None and (armed != self._armed_sent or t_s >= self._next_arming_s):
+            if self._send_frames(self.arming.encode(armed), "ArmingStatus", "send_errors", t_s):
+                self.stats["arming_status_sent"] += 1
+                self._armed_sent = armed
+            self._next_arming_s = t_s + ARMING_STATUS_PERIOD_S
         if not np.all(np.isfinite(u)):
             self.stats["nonfinite_sent"] += 1
             self._log(
@@ -172,11 +184,10 @@ class CanServoSender(Closing):
 
 class CanServoOutput:
     """The runner's :class:`heli_common.links.ServoOutput` over DroneCAN: the pitches of
-    each tick, stamped with its time; the servo bus carries no arming (disarmed sends
-    the zero pitches the runner computes)."""
+    each tick, stamped with its time, and the arming state as DroneCAN ArmingStatus."""
 
     def __init__(self, sender: CanServoSender) -> None:
         self.sender = sender
 
     def send_pitches(self, t_us: int, pitches_rad: FloatArray, armed: bool) -> None:
-        self.sender.send(pitches_rad, t_us / 1e6)
+        self.sender.send(pitches_rad, t_us / 1e6, armed=armed)

@@ -53,9 +53,12 @@ from heli_common.can.bus import CanBus
 ARRAY_COMMAND: Any = dronecan.uavcan.equipment.actuator.ArrayCommand
 ACTUATOR_COMMAND: Any = dronecan.uavcan.equipment.actuator.Command
 NODE_STATUS: Any = dronecan.uavcan.protocol.NodeStatus
+ARMING_STATUS: Any = dronecan.uavcan.equipment.safety.ArmingStatus
 
 ARRAY_COMMAND_DTID = 1010
 NODE_STATUS_DTID = 341
+ARMING_STATUS_DTID = 1100
+ARMING_STATUS_DISARMED, ARMING_STATUS_FULL = 0, 255  # ArmingStatus.STATUS_*
 COMMAND_TYPE_POSITION = 1  # Command.COMMAND_TYPE_POSITION: metre or radian
 MAX_COMMANDS_PER_ARRAY = 15  # Command[<=15]
 
@@ -68,6 +71,7 @@ DEFAULT_ACTUATOR_IDS: tuple[int, int, int, int] = (1, 2, 3, 4)
 #: is housekeeping and must not delay them.
 PRIORITY_ARRAY_COMMAND = 8
 PRIORITY_NODE_STATUS = 24
+PRIORITY_ARMING_STATUS = 16  # before the commands it qualifies, after time-critical ones
 
 #: float16 keeps 11 significant bits: rounding moves a value by at most half a unit in the
 #: last place, 2**-11 relative (~1.2e-4 rad at 0.25..0.5 rad), 2**-25 absolute near zero.
@@ -77,6 +81,7 @@ FLOAT16_MAX = 65504.0
 
 assert ARRAY_COMMAND.default_dtid == ARRAY_COMMAND_DTID
 assert NODE_STATUS.default_dtid == NODE_STATUS_DTID
+assert ARMING_STATUS.default_dtid == ARMING_STATUS_DTID
 
 
 @dataclass(frozen=True)
@@ -174,14 +179,44 @@ class ArrayCommandEncoder:
         return _to_frames(tr)
 
 
-class NodeStatusEncoder:
-    """Encodes ``uavcan.protocol.NodeStatus`` (single frame) from one node."""
+class _Broadcaster:
+    """One message type broadcast by one node: its DSDL object, built once, and the
+    transfer id counting 0..31, as DroneCAN requires per data type."""
 
-    def __init__(self, node_id: int, *, priority: int = PRIORITY_NODE_STATUS) -> None:
+    def __init__(self, node_id: int, message: Any, priority: int) -> None:
         self.node_id = check_node_id(node_id)
         self.priority = priority
         self.transfer_id = 0
-        self._msg: Any = NODE_STATUS()
+        self._msg: Any = message
+
+    def _frames(self) -> list[CanFrame]:
+        tr = transport.Transfer(
+            transfer_id=self.transfer_id,
+            source_node_id=self.node_id,
+            payload=self._msg,
+            transfer_priority=self.priority,
+        )
+        self.transfer_id = (self.transfer_id + 1) & 0x1F
+        return _to_frames(tr)
+
+
+class ArmingStatusEncoder(_Broadcaster):
+    """Encodes ``uavcan.equipment.safety.ArmingStatus`` (1100): what a servo node on a real
+    bus learns of the vehicle's arming, and what the plant's servo input reads."""
+
+    def __init__(self, node_id: int, *, priority: int = PRIORITY_ARMING_STATUS) -> None:
+        super().__init__(node_id, ARMING_STATUS(), priority)
+
+    def encode(self, armed: bool) -> list[CanFrame]:
+        self._msg.status = ARMING_STATUS_FULL if armed else ARMING_STATUS_DISARMED
+        return self._frames()
+
+
+class NodeStatusEncoder(_Broadcaster):
+    """Encodes ``uavcan.protocol.NodeStatus`` (single frame) from one node."""
+
+    def __init__(self, node_id: int, *, priority: int = PRIORITY_NODE_STATUS) -> None:
+        super().__init__(node_id, NODE_STATUS(), priority)
 
     def encode(
         self,
@@ -197,14 +232,7 @@ class NodeStatusEncoder:
         m.mode = mode
         m.sub_mode = 0
         m.vendor_specific_status_code = vendor_status & 0xFFFF
-        tr = transport.Transfer(
-            transfer_id=self.transfer_id,
-            source_node_id=self.node_id,
-            payload=m,
-            transfer_priority=self.priority,
-        )
-        self.transfer_id = (self.transfer_id + 1) & 0x1F
-        return _to_frames(tr)
+        return self._frames()
 
 
 # ----------------------------------------------------------------------------- receiving

@@ -53,6 +53,8 @@ import numpy as np
 from heli_common.airframe import PitchLimits
 from heli_common.can.bus import CanBus, CanBusConfig, CanBusError, open_bus
 from heli_common.can.dronecan_codec import (
+    ARMING_STATUS_DTID,
+    ARMING_STATUS_FULL,
     ARRAY_COMMAND_DTID,
     COMMAND_TYPE_POSITION,
     DEFAULT_ACTUATOR_IDS,
@@ -81,6 +83,7 @@ STAT_KEYS = (
     "transfers_rx",  # complete, checked transfers of a handled type
     "commands_applied",  # ArrayCommands that set the held pitches
     "node_status_rx",
+    "arming_status_rx",
     "clipped",  # applied, with a value within float16 rounding past a limit
     *(r.value for r in DropReason),  # frame/transfer-level drops (see DropReason)
     "foreign_source",  # ArrayCommand from another node than source_node_id
@@ -146,7 +149,9 @@ class CanServoEndpoint(Closing):
         self._silent = False
         self._now_s = 0.0
         self._log = RateLimitedLog(log, log_interval_s)
-        self._reassembler = Reassembler((ARRAY_COMMAND_DTID, NODE_STATUS_DTID), self._on_drop)
+        self._reassembler = Reassembler((ARRAY_COMMAND_DTID, NODE_STATUS_DTID, ARMING_STATUS_DTID),
+                                        self._on_drop)  # fmt: skip
+        self.armed = False  # the autopilot's latest uavcan.equipment.safety.ArmingStatus
 
         # load (or compile) the numba gate now: the first command must not stall the
         # receiver for seconds while frames pile up in the bus's queue
@@ -234,6 +239,11 @@ class CanServoEndpoint(Closing):
 
     def _handle(self, tr: ReceivedTransfer, now_s: float) -> None:
         self.stats["transfers_rx"] += 1
+        if tr.data_type_id == ARMING_STATUS_DTID:
+            if self.source_node_id is None or tr.source_node_id == self.source_node_id:
+                self.stats["arming_status_rx"] += 1
+                self.armed = int(tr.payload.status) == ARMING_STATUS_FULL
+            return
         if tr.data_type_id == NODE_STATUS_DTID:
             p = tr.payload
             self.stats["node_status_rx"] += 1

@@ -52,10 +52,11 @@ class MavlinkServoInput:
 
 
 class CanServoInput:
-    """DroneCAN ArrayCommand: no time stamp (a command answers the state last published)
-    and no arming flag."""
+    """DroneCAN ArrayCommand: no time stamp (a command answers the state last published);
+    the arming state is the autopilot's latest ArmingStatus on the bus (it is sent before
+    the command it qualifies)."""
 
-    carries_arming = False
+    carries_arming = True
 
     def __init__(self, endpoint: CanServoEndpoint) -> None:
         self.endpoint = endpoint
@@ -70,4 +71,4 @@ class CanServoInput:
         held = self.endpoint.poll(time.monotonic(), wait_s=wait_s)
         if held is None or self.endpoint.stats["commands_applied"] == before:
             return []
-        return [ServoCommand(current_t_us, held, True)]
+        return [ServoCommand(current_t_us, held, self.endpoint.armed)]
