@@ -46,8 +46,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--rate-hz", type=arg.control_rate_hz, default=None, help="control rate (50-1000 Hz)")
     p.add_argument("--feedforward", choices=("pseudo", "exact"), default=None)
     p.add_argument("--duration-s", type=arg.positive, default=None, help="stop after this flight time")
-    p.add_argument("--port", type=arg.bind_port, default=PORTS.autopilot, help="sim link: UDP port to bind")
-    p.add_argument("--plant-port", type=arg.port, default=PORTS.plant, help="sim link: the plant's UDP port")
+    p.add_argument("--port", type=arg.bind_port, default=None, help="sim link: UDP port to bind")
+    p.add_argument("--plant-port", type=arg.port, default=None, help="sim link: the plant's UDP port")
     p.add_argument("--stale-timeout-s", type=arg.positive, default=0.5)
     p.add_argument(
         "--autostart", action="store_true", help="arm and fly the scenario trajectory at once"
@@ -60,12 +60,13 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--can-node-id", type=arg.in_range(1, 127, int), default=None, help="DroneCAN node id")
     g = p.add_argument_group(f"GCS link (ground stations on {PORTS.gcs}, API clients on {PORTS.api})")
     g.add_argument("--no-gcs", action="store_true", help="no ground-station link")
-    g.add_argument("--gcs-port", type=arg.port, default=PORTS.gcs)
-    g.add_argument("--api-port", type=arg.port, default=PORTS.api)
-    g.add_argument("--local-gcs-port", type=arg.bind_port, default=PORTS.local_gcs,
-                   help="our end of the GCS link")
-    g.add_argument("--local-api-port", type=arg.bind_port, default=PORTS.local_api,
-                   help="our end of the API link")
+    g.add_argument("--gcs-port", type=arg.port, default=None, help=f"default {PORTS.gcs} + 10 N")
+    g.add_argument("--api-port", type=arg.port, default=None, help=f"default {PORTS.api} + 10 N")
+    g.add_argument("--local-gcs-port", type=arg.bind_port, default=None,
+                   help=f"our end of the GCS link (default {PORTS.local_gcs} + 10 N)")
+    g.add_argument("--local-api-port", type=arg.bind_port, default=None,
+                   help=f"our end of the API link (default {PORTS.local_api} + 10 N)")
+    arg.add_instance_args(g)
     g.add_argument("--home", default=f"{HOME.lat_deg},{HOME.lon_deg},{HOME.alt_amsl_m}",
                    help="home latitude,longitude [deg],altitude AMSL [m]")
     g.add_argument("--signing-key", default=None,
@@ -114,12 +115,18 @@ def make_gcs(
         gcs_port=args.gcs_port, api_port=args.api_port, local_gcs_port=args.local_gcs_port,
         local_api_port=args.local_api_port, home=home,
         signing_key=read_signing_key(args.signing_key) if args.signing_key else None,
+        system_id=args.sysid,
     )  # fmt: skip
-    table = ParamTable(sc.gains, sc.airframe.limits, ctrl.rate_hz, home=home)
+    table = ParamTable(sc.gains, sc.airframe.limits, ctrl.rate_hz, home=home, system_id=args.sysid)
     return GcsService(cfg, table, lambda t: apply_params(ctrl, manager, t), limits, manager=manager)
 
 
+AUTOPILOT_PORTS = {"port": "autopilot", "plant_port": "plant", "gcs_port": "gcs", "api_port": "api",
+                   "local_gcs_port": "local_gcs", "local_api_port": "local_api"}  # fmt: skip
+
+
 def run(args: argparse.Namespace, stop: threading.Event) -> int:
+    arg.resolve_instance(args, AUTOPILOT_PORTS)
     if args.port == args.plant_port:  # it would only hear its own commands
         raise UsageError(f"--port and --plant-port must differ (both {args.port})")
     sc = Scenario.load(args.scenario)

@@ -46,7 +46,8 @@ class UsageError(Exception):
 
 def build_parser() -> argparse.ArgumentParser:
     common = argparse.ArgumentParser(add_help=False)
-    common.add_argument("--gcs-port", type=arg.bind_port, default=PORTS.gcs,
+    arg.add_instance_args(common)
+    common.add_argument("--gcs-port", type=arg.bind_port, default=None,
                         help=f"UDP port to listen on: where the vehicle sends (default {PORTS.gcs}; "
                              f"{PORTS.api} is the vehicle's second link)")
     common.add_argument("--signing-key", type=Path, default=None,
@@ -105,6 +106,7 @@ def main(argv: list[str] | None = None) -> int:
         from heli_common.process import terminate_on_sigterm  # so a .tlog is closed, not cut
 
         terminate_on_sigterm()
+    arg.resolve_instance(args, {"gcs_port": "gcs"})
     func: Callable[[argparse.Namespace], int] = args.func
     return run_main(PROG, lambda: func(args), usage=(FileFormatError, TlogError, UsageError),
                     failure=(GroundError,), port_hint=" (another ground station listening? see --gcs-port)")
@@ -120,7 +122,7 @@ def _client(args: argparse.Namespace, tlog: TlogWriter | None = None) -> GroundC
             key = read_signing_key(args.signing_key)
         except SigningKeyError as exc:  # a missing or malformed key file is bad input
             raise UsageError(str(exc)) from exc
-    return GroundClient(args.gcs_port, signing_key=key, tlog=tlog)
+    return GroundClient(args.gcs_port, signing_key=key, tlog=tlog, target_system=args.sysid)
 
 
 def _load(args: argparse.Namespace) -> MissionFile:

@@ -140,7 +140,8 @@ class GroundClient(Closing):
         self.target_component = target_component
         self.tlog = tlog
         self.heartbeat_period_s = heartbeat_period_s
-        self.vehicle: Address | None = None
+        # where each system was heard from: several vehicles may send to one port
+        self.vehicles: dict[int, Address] = {}
         self.latest: dict[str, Message] = {}  # the vehicle's latest message of each type
         self.texts: deque[tuple[float, int, str]] = deque(maxlen=200)  # (monotonic, severity, text)
         self.listeners: list[Callable[[Message], None]] = []
@@ -179,10 +180,9 @@ class GroundClient(Closing):
         now = time.monotonic()
         for m, addr in got:
             kind = m.get_type()
+            self.vehicles.setdefault(m.get_srcSystem(), addr)
             if self.from_vehicle(m):
                 self.latest[kind] = m
-                if self.vehicle is None:
-                    self.vehicle = addr
                 if kind == "STATUSTEXT":
                     self.texts.append((now, int(m.severity), str(m.text)))
             for fn in self.listeners:
@@ -220,20 +220,27 @@ class GroundClient(Closing):
 
     # ----------------------------------------------------------------- sending
 
+    @property
+    def vehicle(self) -> Address | None:
+        """The address of the target system (None until it was heard)."""
+        return self.vehicles.get(self.target_system)
+
     def send(self, *msgs: Message) -> None:
-        if self.vehicle is None:
-            raise GroundError("no vehicle yet: call connect() first")
-        self.link.send(*msgs, to=self.vehicle)
+        to = self.vehicle
+        if to is None:
+            raise GroundError(f"no vehicle {self.target_system} yet: call connect() first")
+        self.link.send(*msgs, to=to)
 
     def _maybe_heartbeat(self) -> None:
         now = time.monotonic()
-        if self.vehicle is None or now < self._next_heartbeat:
+        if not self.vehicles or now < self._next_heartbeat:
             return
         self._next_heartbeat = now + self.heartbeat_period_s
         hb = m2.MAVLink_heartbeat_message(
             m2.MAV_TYPE_GCS, m2.MAV_AUTOPILOT_INVALID, 0, 0, m2.MAV_STATE_ACTIVE, 3
         )
-        self.link.send(hb, to=self.vehicle)
+        for addr in set(self.vehicles.values()):  # every vehicle heard sees a ground station
+            self.link.send(hb, to=addr)
 
     # ----------------------------------------------------------------- connection
 

@@ -61,3 +61,31 @@ def count(text: str) -> int:
 control_rate_hz = in_range(50.0, 1000.0)
 #: physics rates a real-time plant may run at (twice the control rate, typically)
 physics_rate_hz = in_range(50.0, 4000.0)
+
+
+def add_instance_args(p: argparse._ActionsContainer, sysid: bool = True) -> None:
+    """``--instance N`` (ArduPilot's convention: every default port + 10 N, so several
+    vehicles run on one host) and ``--sysid`` (default 1 + N: a ground station tells the
+    vehicles apart by system id)."""
+    p.add_argument("--instance", type=in_range(0, 99, int), default=0,
+                   help="vehicle instance N: every default port + 10 N (default 0)")
+    if sysid:
+        p.add_argument("--sysid", type=in_range(1, 250, int), default=None,
+                       help="MAVLink system id of the vehicle (default 1 + instance)")
+
+
+def resolve_instance(args: argparse.Namespace, port_options: dict[str, str]) -> None:
+    """Fill the port options left unset (None) from the instance's defaults, and the sysid.
+
+    ``port_options`` maps an option's dest (``gcs_port``) to a field of
+    :class:`heli_common.defaults.Ports` (``gcs``)."""
+    from heli_common.defaults import ports
+
+    if not hasattr(args, "instance"):  # a subcommand without ports (e.g. plot)
+        return
+    defaults = ports(int(args.instance))
+    for dest, field in port_options.items():
+        if getattr(args, dest, None) is None:
+            setattr(args, dest, getattr(defaults, field))
+    if hasattr(args, "sysid") and args.sysid is None:
+        args.sysid = 1 + int(args.instance)

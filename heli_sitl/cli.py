@@ -71,6 +71,7 @@ def _run(args: argparse.Namespace) -> int:
     from heli_sitl.plant.model import Plant
     from heli_sitl.plant.server import PlantServer, SimConfig
 
+    arg.resolve_instance(args, {"port": "plant", "autopilot_port": "autopilot"})
     if args.port == args.autopilot_port:  # it would only hear its own states
         raise UsageError(f"--port and --autopilot-port must differ (both {args.port})")
     logging.basicConfig(
@@ -119,11 +120,13 @@ def _up(args: argparse.Namespace) -> int:
     from heli_sitl.demo import DemoError, UpOptions, serve
 
     terminate_on_sigterm()
-
+    arg.resolve_instance(args, {"gcs_port": "gcs", "api_port": "api", "local_gcs_port": "local_gcs",
+                                "local_api_port": "local_api"})  # fmt: skip
     opts = UpOptions(
         mode=args.mode, rate_hz=args.rate_hz, scenario=args.scenario, in_air=args.in_air,
         gcs_port=args.gcs_port, api_port=args.api_port, local_gcs_port=args.local_gcs_port,
         local_api_port=args.local_api_port, signing_key=args.signing_key, out=args.out,
+        sysid=args.sysid,
     )  # fmt: skip
     try:
         serve(opts)
@@ -188,8 +191,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="lockstep: control rate; realtime: physics rate")
     r.add_argument("--plant-substeps", type=arg.count, default=1)
     r.add_argument("--duration-s", type=arg.positive, default=None)
-    r.add_argument("--port", type=arg.bind_port, default=PORTS.plant, help="UDP port to bind")
-    r.add_argument("--autopilot-port", type=arg.port, default=PORTS.autopilot)
+    r.add_argument("--port", type=arg.bind_port, default=None,
+                   help=f"UDP port to bind (default {PORTS.plant} + 10 N)")
+    r.add_argument("--autopilot-port", type=arg.port, default=None,
+                   help=f"the autopilot's sim-link port (default {PORTS.autopilot} + 10 N)")
+    arg.add_instance_args(r, sysid=False)
     r.add_argument("--timeout-s", type=arg.positive, default=1.0, help="autopilot silent after this")
     add_servo_args(r)
     r.add_argument("--hold-until-armed", action="store_true",
@@ -203,10 +209,15 @@ def build_parser() -> argparse.ArgumentParser:
     u.add_argument("--scenario", default="paper", help="airframe and gains")
     u.add_argument("--in-air", action="store_true",
                    help="start at the scenario's initial state, clock held until armed")
-    u.add_argument("--gcs-port", type=arg.port, default=PORTS.gcs)
-    u.add_argument("--api-port", type=arg.port, default=PORTS.api)
-    u.add_argument("--local-gcs-port", type=arg.bind_port, default=PORTS.local_gcs)
-    u.add_argument("--local-api-port", type=arg.bind_port, default=PORTS.local_api)
+    u.add_argument("--gcs-port", type=arg.port, default=None,
+                   help=f"where ground stations listen (default {PORTS.gcs} + 10 N)")
+    u.add_argument("--api-port", type=arg.port, default=None,
+                   help=f"where API clients (MAVSDK) listen (default {PORTS.api} + 10 N)")
+    u.add_argument("--local-gcs-port", type=arg.bind_port, default=None,
+                   help=f"the vehicle's end of the ground-station link (default {PORTS.local_gcs} + 10 N)")
+    u.add_argument("--local-api-port", type=arg.bind_port, default=None,
+                   help=f"the vehicle's end of the API link (default {PORTS.local_api} + 10 N)")
+    arg.add_instance_args(u)
     u.add_argument("--signing-key", default=None)
     u.add_argument("--out", default=None, help="autopilot writes run.csv/summary/tlog here on exit")
     u.set_defaults(func=_up)

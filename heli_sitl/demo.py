@@ -127,6 +127,7 @@ class UpOptions:
     out: str | None = None
     plant_port: int = 0
     autopilot_port: int = 0
+    sysid: int = 1
 
 
 def up_commands(opts: UpOptions) -> list[tuple[str, list[str]]]:
@@ -143,6 +144,7 @@ def up_commands(opts: UpOptions) -> list[tuple[str, list[str]]]:
         "--port", str(ap), "--plant-port", str(pp),
         "--gcs-port", str(opts.gcs_port), "--api-port", str(opts.api_port),
         "--local-gcs-port", str(opts.local_gcs_port), "--local-api-port", str(opts.local_api_port),
+        "--sysid", str(opts.sysid),
     ] + (["--signing-key", opts.signing_key] if opts.signing_key else []) + (
         ["--out", opts.out] if opts.out else []
     )  # fmt: skip
@@ -171,8 +173,8 @@ def serve(opts: UpOptions, stop_after_s: float | None = None) -> None:
         pass
     finally:
         stop_all([p for _, p in procs])
-    for name, p in procs:  # each child ends its own way on SIGTERM: with status 0
-        if p.returncode != 0:
+    for name, p in procs:  # on our SIGTERM a child exits 0 (or dies of it while starting up)
+        if p.returncode not in (0, -signal.SIGTERM):
             raise DemoError(f"{name} failed ({describe_exit(p.returncode)}): {p.last_error_line()}")
 
 

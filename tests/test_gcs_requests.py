@@ -9,6 +9,7 @@ never blocks on a full pipe.
 
 from __future__ import annotations
 
+import math
 import sys
 import time
 from pathlib import Path
@@ -19,7 +20,7 @@ from test_ground_client import client, gwp, running_vehicle
 from ground.client import GroundClient
 from heli_common.mavlink import mission_items as ms
 from heli_common.mavlink import modes as wm
-from heli_common.mavlink.udp import Message, mavlink2
+from heli_common.mavlink.udp import Message, free_udp_port, mavlink2
 from heli_sitl.children import spawn
 
 m2 = mavlink2
@@ -188,3 +189,38 @@ def test_qgroundcontrol_connect_sequence_is_answered_at_every_step() -> None:
         assert text is not None and text.text == "Hold"
         cur = gc.recv_match(lambda m: m.get_msgId() == wm.MSG_ID_CURRENT_MODE, 3.0)
         assert cur is not None and cur.custom_mode == wm.HOLD.custom_mode and cur.standard_mode == 1
+
+
+@pytest.mark.slow
+def test_two_instances_fly_side_by_side_and_a_client_sees_both() -> None:
+    """``heli-sitl up --instance 7`` and ``--instance 8`` on one host: every default port + 70
+    or + 80, system ids 8 and 9; both send to one ground-station port, as QGroundControl
+    listens on one. Each takes the commands addressed to it and ignores the other's."""
+    gcs = free_udp_port()
+    ups = [spawn([sys.executable, "-m", "heli_sitl.cli", "up", "--instance", str(n), "--gcs-port", str(gcs)],
+                 f"up{n}") for n in (7, 8)]  # fmt: skip
+    try:
+        with GroundClient(gcs, target_system=8) as gc:
+            seen: set[int] = set()
+            deadline = time.monotonic() + 120.0
+            while seen != {8, 9} and time.monotonic() < deadline:
+                for m in gc.poll(0.5):
+                    if m.get_type() == "HEARTBEAT" and m.type == m2.MAV_TYPE_HELICOPTER:
+                        seen.add(m.get_srcSystem())
+            assert seen == {8, 9}
+            for sysid, alt in ((8, 2.0), (9, 4.0)):
+                gc.target_system = sysid
+                gc.arm()
+                gc.command_ok(m2.MAV_CMD_NAV_TAKEOFF, [math.nan] * 6 + [alt])
+            top = {8: 0.0, 9: 0.0}
+            deadline = time.monotonic() + 30.0
+            while time.monotonic() < deadline and (top[8] < 1.8 or top[9] < 3.6):
+                for m in gc.poll(0.2):
+                    if m.get_type() == "LOCAL_POSITION_NED" and m.get_srcSystem() in top:
+                        top[m.get_srcSystem()] = max(top[m.get_srcSystem()], -float(m.z))
+            assert top[8] >= 1.8 and top[9] >= 3.6, top
+            assert top[8] < 3.0  # instance 7 took its own take-off, not the other's
+            assert all(u.poll() is None for u in ups)
+    finally:
+        for u in ups:
+            u.stop()

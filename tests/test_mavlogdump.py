@@ -170,8 +170,9 @@ def test_heli_ground_log_is_read_by_mavlogdump_and_matches_the_autopilot(
     print(f"heli-ground fly: {fly_s:.1f} s wall")
 
     # --- mavlogdump.py reads every record, with our time stamps
-    dump = subprocess.run([sys.executable, str(MAVLOGDUMP), "--format", "json", str(tlog)],
-                          capture_output=True, timeout=120, check=True)  # fmt: skip
+    # the development dialect names the standard-modes messages (CURRENT_MODE, ...)
+    dump = subprocess.run([sys.executable, str(MAVLOGDUMP), "--dialect", "development", "--format", "json",
+                           str(tlog)], capture_output=True, timeout=120, check=True)  # fmt: skip
     records = [json.loads(line) for line in dump.stdout.decode().splitlines() if line.startswith("{")]
     theirs = Counter(r["meta"]["type"] for r in records)
     ours_list = list(read_tlog(tlog))

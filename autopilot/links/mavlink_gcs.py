@@ -122,6 +122,7 @@ class GcsConfig:
     local_api_port: int = PORTS.local_api
     home: GeoPoint = HOME
     signing_key: bytes | None = None
+    system_id: int = 1  # the vehicle's MAVLink system id on this link (component 1)
     offboard_timeout_s: float = 1.0
     rates_hz: dict[int, float] = field(default_factory=lambda: dict(DEFAULT_RATES_HZ))
 
@@ -159,13 +160,14 @@ class GcsService:
         self.flight_limits = flight_limits or FlightLimits()
         self.manager: FlightManager | None = None  # the runner's, set by attach()
         self.links = [
-            MavlinkUdp((cfg.host, cfg.local_gcs_port), (cfg.host, cfg.gcs_port), drop_nonfinite=False),
-            MavlinkUdp((cfg.host, cfg.local_api_port), (cfg.host, cfg.api_port), drop_nonfinite=False),
+            MavlinkUdp((cfg.host, port), (cfg.host, to), system_id=cfg.system_id, drop_nonfinite=False)
+            for port, to in ((cfg.local_gcs_port, cfg.gcs_port), (cfg.local_api_port, cfg.api_port))
         ]
         if cfg.signing_key is not None:
             for link in self.links:
                 link.setup_signing(cfg.signing_key, lambda msg_id: msg_id in UNSIGNED_OK)
         self.missions = MissionServer(
+            system_id=cfg.system_id,
             home=cfg.home,
             check_mission=self._check_mission,
         )
@@ -434,7 +436,7 @@ class GcsService:
                   to=addr)  # fmt: skip
 
     def _on_command(self, link: MavlinkUdp, addr: Address, msg: Message) -> None:
-        if msg.target_system not in (0, 1) or msg.target_component not in (0, 1):
+        if msg.target_system not in (0, self.cfg.system_id) or msg.target_component not in (0, 1):
             return
         p = [msg.param1, msg.param2, msg.param3, msg.param4]
         if msg.get_type() == "COMMAND_INT":
@@ -548,7 +550,7 @@ class GcsService:
 
     def _on_set_mode(self, msg: Message) -> None:
         """The SET_MODE message (no ACK): the whole custom mode."""
-        if msg.target_system not in (0, 1):
+        if msg.target_system not in (0, self.cfg.system_id):
             return
         mode = wm.BY_CUSTOM.get(int(msg.custom_mode))
         if mode is None:
