@@ -137,3 +137,61 @@ def test_landing_ends_disarmed_with_a_message(mgr: FlightManager) -> None:
 
 def test_unknown_command_type_is_unsupported(mgr: FlightManager) -> None:
     assert mgr.execute(object(), 0.0, ON_GROUND).result is c.Result.UNSUPPORTED  # type: ignore[arg-type]
+
+
+def _refs(mgr: FlightManager, t0: float, t1: float, x: np.ndarray, at: dict[float, c.Command]) -> np.ndarray:
+    """The reference at every 10 ms tick of [t0, t1], executing ``at[t]`` commands first."""
+    rows = []
+    for k in range(round((t1 - t0) * 100) + 1):
+        t = t0 + k * 0.01
+        for when, cmd in at.items():
+            if abs(t - when) < 1e-9:
+                assert mgr.execute(cmd, t, x).accepted, cmd
+        mgr.pre_tick(t, x)
+        ref = mgr.flight.reference(t, x)
+        assert ref is not None
+        rows.append(ref)
+        mgr.post_tick(t, x)
+    return np.array(rows)
+
+
+def _assert_continuous(refs: np.ndarray, max_acc: float = 1.0) -> None:
+    """Position moves by at most its speed times a tick; velocity by at most max_acc a tick."""
+    dp = np.linalg.norm(np.diff(refs[:, 0:3], axis=0), axis=1)
+    speed = np.linalg.norm(refs[:-1, 3:6], axis=1) + np.linalg.norm(refs[1:, 3:6], axis=1)
+    assert np.all(dp <= 0.5 * speed * 0.01 + 1e-3), dp.max()
+    dv = np.linalg.norm(np.diff(refs[:, 3:6], axis=0), axis=1)
+    assert np.all(dv <= max_acc * 0.01 + 1e-6), dv.max()
+
+
+def test_the_end_of_a_moving_trajectory_brakes_to_a_hold(mgr: FlightManager) -> None:
+    """The paper's spiral still moves at 0.785 m/s at its end: the reference brakes to rest
+    instead of stopping dead (which kicked the vehicle by 0.25 rad of pitch)."""
+    from autopilot.scenario import Scenario
+
+    spiral = Scenario.load("paper").trajectory
+    x = hovering(20.0)
+    mgr.execute(c.FlyTrajectory(spiral), 0.0, x)
+    mgr.execute(c.Arm(), 0.0, x)
+    refs = _refs(mgr, 118.0, 124.0, x, {})
+    _assert_continuous(refs)
+    assert mgr.mode is Mode.HOLD and np.allclose(refs[-1, 3:9], 0.0)
+    end = spiral.evaluate_row(spiral.duration_s)
+    stop = np.linalg.norm(refs[-1, 0:3] - end[0:3])
+    assert 0.5 < stop < 0.7  # v^2 / (2 a) = 0.785^2 / 1.0
+
+
+def test_hold_and_land_mid_flight_start_where_the_reference_is(mgr: FlightManager) -> None:
+    line = StraightLine(start_nwu_m=(0.0, 0.0, 5.0), vel_nwu_m_s=(1.0, 0.5, 0.0), duration_s=60.0)
+    x = hovering(5.0)
+    mgr.execute(c.FlyTrajectory(line), 0.0, x)
+    mgr.execute(c.Arm(), 0.0, x)
+    away = x.copy()
+    away[0:3] = (30.0, -7.0, 4.0)  # the vehicle far off its reference: the switch still starts at it
+    refs = _refs(mgr, 9.0, 20.0, away, {10.0: c.Hold(), 15.0: c.Land()})
+    _assert_continuous(refs)
+    held = refs[round(4.9 * 100)]  # 13.9 s: braked and holding at the line's stop point
+    stop = (9.99 + 0.5 * 1.0 * 2.2361, 4.995 + 0.5 * 0.5 * 2.2361, 5.0)  # from the 9.99 s reference
+    assert np.allclose(held[0:3], stop, atol=0.01)
+    assert np.allclose(refs[-1, 0:2], held[0:2], atol=0.01) and refs[-1, 2] < 4.5  # landing there
+

@@ -222,3 +222,11 @@ def test_demo_through_the_ground_script_matches_in_process(tmp_path: Path, in_pr
     rms_ref = in_process["summary"]["rms_pos_err_m"]["45-120"]  # type: ignore[index]
     assert abs(summary["rms_pos_err_m"]["45-120"] - rms_ref) < 0.002  # type: ignore[index]
     assert (tmp_path / "ground.tlog").stat().st_size > 0
+    # After the spiral (still moving at 0.785 m/s) the reference brakes to a hold and the
+    # landing starts there: no step in the reference, no kick beyond the start transient.
+    after = cols["t"] > 120.0
+    cmd = np.stack([cols[k] for k in ("x_cmd", "y_cmd", "z_cmd")], axis=1)
+    steps = np.linalg.norm(np.diff(cmd, axis=0), axis=1)
+    assert steps[after[1:]].max() < 0.01, f"reference step {steps[after[1:]].max():.3f} m after 120 s"
+    kick = float(np.abs(cols["theta"][after]).max())
+    assert kick <= float(np.abs(in_process["theta"]).max()), f"pitch {kick:.3f} rad after the mission"

@@ -24,10 +24,11 @@ from autopilot.flight.modes import Flight, Mode, landed
 from autopilot.reference import N_REF, REF_POS
 from autopilot.trajectory.waypoints import FlightLimits, WaypointTrajectory
 from autopilot.trajectory_codec import mission_to_trajectory
+from heli_common import frames
 from heli_common.geo import GeoPoint
 from heli_common.mavlink import mission_items as ms
 from heli_common.mavlink.mission_items import MissionItem
-from heli_common.state import POS, FloatArray
+from heli_common.state import FloatArray
 
 DEFAULT_TAKEOFF_ALT_M = 2.5
 TAKEOFF_ALT_RANGE_M = (0.5, 500.0)
@@ -141,7 +142,7 @@ class FlightManager:
                 return reply
             return c.Reply(c.Result.ACCEPTED, "Armed: mission started")
         if f.mode in (Mode.IDLE, Mode.HOLD):  # hold here; a started trajectory or the
-            f.hold(self._x)  # offboard setpoints are followed from this tick
+            f.hold(self._x, self._t)  # offboard setpoints are followed from this tick
         return c.Reply(c.Result.ACCEPTED, "Armed")
 
     def _disarm(self, cmd: c.Disarm) -> c.Reply:
@@ -156,8 +157,9 @@ class FlightManager:
         """Fly ``items`` from here; ``mission``: they are the stored mission, whose progress
         (current item, items reached) is reported."""
         try:
-            traj = mission_to_trajectory(items, self.cfg.home, self._x[POS].tolist(), self.cfg.limits,
-                                         start_seq)  # fmt: skip
+            # from where the current reference comes to rest: the switch is continuous
+            start = self.flight.here(self._x).tolist()
+            traj = mission_to_trajectory(items, self.cfg.home, start, self.cfg.limits, start_seq)
         except ValueError as exc:
             return c.Reply(c.Result.DENIED, f"Refused: {exc}"[:50])
         self.flight.start(traj, self._t)
@@ -188,11 +190,11 @@ class FlightManager:
         return c.Reply(c.Result.ACCEPTED, "Mission mode: starts when armed")
 
     def _local_item(self, command: int, z_up_m: float | None = None) -> MissionItem:
-        """An item at the current position in MAV_FRAME_LOCAL_NED (x, y in 1e-4 m)."""
-        pos = self._x[POS]
-        z = -(pos[2] if z_up_m is None else z_up_m)
-        return MissionItem(0, ms.FRAME_LOCAL_NED, command, x=int(round(pos[0] * 1e4)),
-                           y=int(round(-pos[1] * 1e4)), z=z)  # fmt: skip
+        """An item here (where the reference comes to rest) in MAV_FRAME_LOCAL_NED."""
+        pos = self.flight.here(self._x)
+        north, east, down = frames.nwu_to_ned((pos[0], pos[1], pos[2] if z_up_m is None else z_up_m))
+        return MissionItem(0, ms.FRAME_LOCAL_NED, command, x=int(round(north * ms.LOCAL_E4)),
+                           y=int(round(east * ms.LOCAL_E4)), z=down)  # fmt: skip
 
     def _takeoff(self, cmd: c.Takeoff) -> c.Reply:
         if not self.flight.armed:
@@ -219,7 +221,7 @@ class FlightManager:
 
     def _hold(self, cmd: c.Hold) -> c.Reply:
         self.mission_on_arm = False
-        self.flight.hold(self._x)
+        self.flight.hold(self._x, self._t)
         return c.Reply(c.Result.ACCEPTED, "Hold")
 
     def _start_offboard(self, cmd: c.StartOffboard) -> c.Reply:
@@ -293,7 +295,7 @@ class FlightManager:
             return
         ob = self._offboard
         if ob is None or t_s - ob.received_t_s > self.offboard_timeout_s:
-            f.hold(x)
+            f.hold(x, t_s)
             self._offboard = None
             self._say(c.Severity.WARNING, "Offboard setpoints lost: holding position")
             return
