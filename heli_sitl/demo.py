@@ -92,18 +92,19 @@ def run_demo(opts: DemoOptions) -> dict[str, object]:
         while leader.poll() is None:
             for name, p in procs:
                 if p.poll() is not None and p.returncode != 0:
-                    raise DemoError(f"{name} died: {p.last_error_line()}")
+                    raise DemoError(f"{name} died ({describe_exit(p.returncode)}): {p.last_error_line()}")
             if time.monotonic() > deadline:
                 raise DemoError(f"timeout: the flight did not finish within {limit:.0f} s")
             time.sleep(0.05)
         if leader.returncode != 0:
             who = "ground script" if opts.via_ground else "autopilot"
-            raise DemoError(f"{who} failed: {leader.last_error_line()}")
+            raise DemoError(f"{who} failed ({describe_exit(leader.returncode)}): {leader.last_error_line()}")
         if opts.via_ground:  # the autopilot writes its record when told to stop
             autopilot = procs[1][1]
             autopilot.send_signal(signal.SIGTERM)
             if autopilot.wait(timeout=120) != 0:
-                raise DemoError(f"autopilot failed: {autopilot.last_error_line()}")
+                raise DemoError(f"autopilot failed ({describe_exit(autopilot.returncode)}): "
+                                f"{autopilot.last_error_line()}")
     finally:
         stop_all([p for _, p in procs])
     summary_path = opts.out / "summary.json"

@@ -72,7 +72,7 @@ def test_realtime_100hz_tracks_the_paper(tmp_path: Path, in_process) -> None:  #
 def test_a_busy_port_is_a_one_line_failure(tmp_path: Path) -> None:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind((LOOPBACK, 0))
-        with pytest.raises(DemoError, match=r"plant died: .*busy"):
+        with pytest.raises(DemoError, match=r"plant died \(exit code 3\): .*busy"):
             run_demo(DemoOptions(plant_port=s.getsockname()[1], out=tmp_path, duration_s=2.0,
                                  timeout_s=120, via_ground=False))  # fmt: skip
 
