@@ -168,6 +168,7 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
     if out and recorder is not None:
         out.mkdir(parents=True, exist_ok=True)
         record = recorder.record(runner.wall_s, {
+            "scenario": sc.run.name if manager.flew_duration(sc.run.duration_s) else None,
             "mode": args.mode, "rate_hz": rate, "feedforward": ctrl.feedforward.value,
             "summary_end_s": args.summary_end_s,
             "loop": stats.summary(), "sim_link": link,

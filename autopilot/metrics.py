@@ -32,11 +32,16 @@ class FlightRecord:
     wall_s: float
     att_cmd: FloatArray | None = None  # (N, 2) commanded roll, pitch where known
     extra: dict[str, Any] = field(default_factory=dict)
+    # time along the flown trajectory (mission or timed trajectory; NaN while holding,
+    # taking off, returning or landing); None: the whole record is the trajectory
+    traj_t_s: FloatArray | None = None
+    landing: FloatArray | None = None  # (N,) bool: ticks of a landing
 
     @classmethod
     def from_ticks(
         cls, t_s: FloatArray, x: FloatArray, ref: FloatArray, pitches: FloatArray,
         diags: FloatArray, wall_s: float, extra: dict[str, Any],
+        traj_t_s: FloatArray | None = None, landing: FloatArray | None = None,
     ) -> FlightRecord:  # fmt: skip
         """From per-tick arrays, ``diags`` being the controller's diagnostics vectors."""
         from autopilot.tlc.controller import D_PHI_C, D_PSI_C, D_SAT_MASK, D_THETA_C
@@ -46,24 +51,35 @@ class FlightRecord:
             psi_cmd=diags[:, D_PSI_C].copy(),
             att_cmd=diags[:, [D_PHI_C, D_THETA_C]].copy(),
             saturated=diags[:, D_SAT_MASK] != 0,
-            wall_s=wall_s, extra=extra,
+            wall_s=wall_s, extra=extra, traj_t_s=traj_t_s, landing=landing,
         )  # fmt: skip
 
     @property
     def pos_err_m(self) -> FloatArray:
         return np.asarray(np.linalg.norm(self.ref[:, 0:3] - self.x[:, POS], axis=1))
 
+    @property
+    def trajectory_time_s(self) -> FloatArray:
+        """Time along the flown trajectory (NaN outside it): the error windows' time."""
+        return self.t_s if self.traj_t_s is None else self.traj_t_s
+
     def window(self, t0: float, t1: float) -> FloatArray:
-        return np.asarray((self.t_s >= t0 - 1e-9) & (self.t_s <= t1 + 1e-9))
+        tt = self.trajectory_time_s
+        with np.errstate(invalid="ignore"):
+            return np.asarray((tt >= t0 - 1e-9) & (tt <= t1 + 1e-9))
 
     def summary(self) -> dict[str, Any]:
-        """Error figures over [0, end], [10, end], [45, end]; ``end`` is the last tick, or
-        ``extra["summary_end_s"]`` (e.g. the trajectory's end when a landing follows)."""
+        """Error figures over [0, end], [10, end], [45, end] of trajectory time (the same
+        windows whether in-process or over processes; holds, take-offs and landings apart);
+        ``end`` is the trajectory's last tick, or ``extra["summary_end_s"]``. The paper's
+        [40, 45] figure only for the paper's scenario (``extra["scenario"] == "paper"``)."""
         if self.t_s.size == 0:  # never armed: no flight to measure
             return {"ticks": 0, "duration_s": 0.0, "rms_pos_err_m": {}, "max_pos_err_m": {},
                     "max_pos_err_40_45_m": None, "wall_s": self.wall_s, **self.extra}  # fmt: skip
         err = self.pos_err_m
-        end = float(self.t_s[-1])
+        tt = self.trajectory_time_s
+        flown = np.isfinite(tt)
+        end = float(np.max(tt[flown])) if flown.any() else 0.0
         if self.extra.get("summary_end_s") is not None:
             end = min(end, float(self.extra["summary_end_s"]))
         rms: dict[str, float] = {}
@@ -74,8 +90,8 @@ class FlightRecord:
                 key = f"{t0:g}-{end:g}"
                 rms[key] = float(np.sqrt(np.mean(err[m] ** 2)))
                 mx[key] = float(np.max(err[m]))
-        jump = self.window(40.0, 45.0)
-        duration = end - float(self.t_s[0])
+        jump = self.window(40.0, 45.0) if self.extra.get("scenario") == "paper" else np.zeros(0, bool)
+        duration = float(self.t_s[-1] - self.t_s[0])
         out: dict[str, Any] = {
             "rms_pos_err_m": rms,
             "max_pos_err_m": mx,
@@ -92,6 +108,10 @@ class FlightRecord:
             "wall_s": self.wall_s,
             "realtime_factor": duration / self.wall_s if self.wall_s > 0 else None,
         }
+        if self.landing is not None and self.landing.any():
+            lt = self.t_s[self.landing]
+            land_err = float(np.max(err[self.landing]))
+            out["landing"] = {"duration_s": float(lt[-1] - lt[0]), "max_pos_err_m": land_err}
         out.update(self.extra)
         return out
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 import csv
 import gc
 import logging
+import math
 import threading
 import time
 from collections.abc import Sequence
@@ -21,6 +22,7 @@ from typing import IO, Any, Protocol
 import numpy as np
 
 from autopilot.flight.manager import FlightManager
+from autopilot.flight.modes import Mode
 from autopilot.metrics import CSV_HEADER, FlightRecord, write_rows
 from autopilot.tlc.controller import D_PSI_C, N_DIAG, OK, TLController
 from heli_common.links import ServoOutput, StateSource
@@ -94,7 +96,7 @@ class Recorder:
     Rows go into preallocated arrays (doubled when full): no Python object per tick, so
     the garbage collector has nothing growing to rescan during the flight."""
 
-    WIDTH = 1 + 12 + 9 + N_PITCH + N_DIAG
+    WIDTH = 1 + 12 + 9 + N_PITCH + N_DIAG + 2  # ... + trajectory time, landing flag
 
     def __init__(self, capacity: int = 16384, stream_csv: Path | None = None, flush_every: int = 100) -> None:
         self.buf = np.empty((capacity, self.WIDTH))
@@ -133,7 +135,10 @@ class Recorder:
             self._fh.close()
             self._fh = None
 
-    def add(self, t: float, x: FloatArray, ref: FloatArray, u: FloatArray, diag: FloatArray) -> None:
+    def add(
+        self, t: float, x: FloatArray, ref: FloatArray, u: FloatArray, diag: FloatArray,
+        traj_t: float = math.nan, landing: bool = False,
+    ) -> None:  # fmt: skip
         if self.n == self.buf.shape[0]:
             self.buf = np.concatenate([self.buf, np.empty_like(self.buf)])
         row = self.buf[self.n]
@@ -141,7 +146,9 @@ class Recorder:
         row[1:13] = x
         row[13:22] = ref
         row[22 : 22 + N_PITCH] = u
-        row[22 + N_PITCH :] = diag
+        row[22 + N_PITCH : -2] = diag
+        row[-2] = traj_t
+        row[-1] = landing
         self.n += 1
 
     def record(
@@ -152,7 +159,8 @@ class Recorder:
         b = self.buf[start : self.n]
         u = b[:, 22 : 22 + N_PITCH].copy() if pitches is None else np.asarray(pitches, dtype=float)
         return FlightRecord.from_ticks(
-            b[:, 0].copy(), b[:, 1:13].copy(), b[:, 13:22].copy(), u, b[:, 22 + N_PITCH :], wall_s, extra,
+            b[:, 0].copy(), b[:, 1:13].copy(), b[:, 13:22].copy(), u, b[:, 22 + N_PITCH : -2], wall_s, extra,
+            traj_t_s=b[:, -2].copy(), landing=b[:, -1] != 0,
         )  # fmt: skip
 
 
@@ -210,7 +218,9 @@ class Runner:
                 self.stats.bad_outputs += 1
             self.u = u
             if self.recorder is not None:  # flight time: since arming
-                self.recorder.add(t_s - self._t_arm_s, x, ref, u, self.ctrl.diag)
+                landing = self.flight.mode is Mode.LAND
+                self.recorder.add(t_s - self._t_arm_s, x, ref, u, self.ctrl.diag,
+                                  self.manager.trajectory_time(t_s), landing)  # fmt: skip
         self.stats.ticks += 1
         if t_us is not None:
             self.servo_out.send_pitches(t_us, self.u, self.flight.armed)

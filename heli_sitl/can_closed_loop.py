@@ -104,6 +104,7 @@ def fly_over_can(
     commanded = recorder.buf[: recorder.n, 22 : 22 + N_PITCH].copy()
     record = recorder.record(wall, {
         "rate_hz": rate_hz,
+        "scenario": run.name,
         "feedforward": ctrl.feedforward.value,
         "plant_substeps": plant.substeps,
         "servo_link": f"can {bus.describe()}",

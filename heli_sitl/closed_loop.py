@@ -111,6 +111,6 @@ def simulate(
         if progress is not None:
             progress(k1 - 1, n)
     wall = time.perf_counter() - wall0
-    extra = {"rate_hz": rate_hz, "feedforward": ctrl.feedforward.value,
+    extra = {"scenario": run.name, "rate_hz": rate_hz, "feedforward": ctrl.feedforward.value,
              "plant_substeps": plant.substeps}  # fmt: skip
     return FlightRecord.from_ticks(t, xs, refs, us, diags, wall, extra)

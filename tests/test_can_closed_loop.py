@@ -105,11 +105,14 @@ def test_plant_applied_the_sent_pitches_to_float16_precision(observed: Observed)
           f"clipped at a limit: {f.endpoint_stats['clipped']} commands")  # fmt: skip
     s = f.endpoint_stats
     assert s["commands_applied"] == 12001 and s["node_status_rx"] == 121
-    ok_keys = {"frames_rx", "transfers_rx", "commands_applied", "node_status_rx", "clipped"}
+    ok_keys = {"frames_rx", "transfers_rx", "commands_applied", "node_status_rx", "arming_status_rx",
+               "clipped"}  # fmt: skip
     assert not any(v for k, v in s.items() if k not in ok_keys), s
     tx = f.sender_stats
     assert tx["commands_sent"] == 12001 and tx["send_errors"] == 0
-    assert tx["frames_sent"] == 3 * 12001 + 121 == s["frames_rx"]
+    # ArmingStatus: once at arming, then at 2 Hz of flight time
+    assert tx["arming_status_sent"] == s["arming_status_rx"] == 241
+    assert tx["frames_sent"] == 3 * 12001 + 121 + 241 == s["frames_rx"]
 
 
 @pytest.mark.slow

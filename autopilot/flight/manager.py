@@ -22,6 +22,7 @@ import numpy as np
 from autopilot.flight import commands as c
 from autopilot.flight.modes import Flight, Mode, landed
 from autopilot.reference import N_REF, REF_POS
+from autopilot.trajectory.base import Trajectory
 from autopilot.trajectory.waypoints import FlightLimits, WaypointTrajectory
 from autopilot.trajectory_codec import mission_to_trajectory
 from heli_common import frames
@@ -70,6 +71,7 @@ class FlightManager:
         self.offboard_timeout_s = cfg.offboard_timeout_s
         self.mission_on_arm = False  # mission mode selected while disarmed
         self.plant_lost = False
+        self._primary: object = None  # the mission or timed trajectory being flown
         self._offboard: _Offboard | None = None
         self._mission_traj: WaypointTrajectory | None = None
         self._mission_done = False
@@ -97,6 +99,21 @@ class FlightManager:
     def armable(self) -> bool:
         """Whether arming would be accepted now (it always is: see ``_arm``)."""
         return True
+
+    def trajectory_time(self, t_s: float) -> float:
+        """Time along the flown trajectory (a mission or a timed trajectory), NaN while
+        holding, taking off, returning or landing: the error windows' time base."""
+        f = self.flight
+        if f.mode is not Mode.AUTO or f.trajectory is None or f.trajectory is not self._primary:
+            return math.nan
+        tau = t_s - f.t0_s
+        return tau if 0.0 <= tau <= f.trajectory.duration_s else math.nan
+
+    def flew_duration(self, duration_s: float) -> bool:
+        """Whether the trajectory flown last lasts ``duration_s`` (the scenario's own, when
+        a ground station uploaded it): the scenario's extra error windows then apply."""
+        traj = self._primary
+        return isinstance(traj, Trajectory) and abs(traj.duration_s - duration_s) < 1e-6
 
     def mission_state(self) -> MissionState:
         if self._mission_traj is not None:
@@ -167,6 +184,7 @@ class FlightManager:
         self._prev_tau = None
         self._current_seq = start_seq
         self._mission_traj = traj if mission and isinstance(traj, WaypointTrajectory) else None
+        self._primary = traj if mission else None
         self._mission_done = False
         return c.Reply(c.Result.ACCEPTED)
 
@@ -242,6 +260,7 @@ class FlightManager:
 
     def _fly_trajectory(self, cmd: c.FlyTrajectory) -> c.Reply:
         self.flight.start(cmd.trajectory, self._t)
+        self._primary = cmd.trajectory
         return c.Reply(c.Result.ACCEPTED)
 
     _HANDLERS: dict[type, Callable[[FlightManager, c.Command], c.Reply]] = {
