@@ -14,7 +14,8 @@ import numpy as np
 import numpy.typing as npt
 
 Cols = Mapping[str, npt.NDArray[np.float64]]
-FIGURES = ("fig5_path3d.png", "fig6_position.png", "fig7_attitude.png", "fig8_controls.png")
+FIGURES = ("fig5_path3d.png", "fig6_position.png", "fig7_attitude.png", "fig8_controls.png",
+           "fig9_error.png")
 
 
 def read_csv_columns(path: Path) -> dict[str, npt.NDArray[np.float64]]:
@@ -26,8 +27,16 @@ def read_csv_columns(path: Path) -> dict[str, npt.NDArray[np.float64]]:
     return {h: data[:, i] for i, h in enumerate(header)}
 
 
-def plot_figures(cols: Cols, out_dir: Path, title: str = "") -> list[Path]:
-    """Write the four figures; returns their paths."""
+def plot_figures(
+    cols: Cols, out_dir: Path, title: str = "", pitch_limits_rad: npt.ArrayLike | None = None
+) -> list[Path]:
+    """Write the paper's Figs 5-8 and the 3-D error (Fig 9); returns their paths.
+    ``pitch_limits_rad``: (4, 2) lower/upper limits drawn on Fig 8 (default: the airframe's)."""
+    if pitch_limits_rad is None:
+        from heli_common.airframe import Airframe
+
+        pitch_limits_rad = Airframe.load().limits.as_tuple()
+    lim = np.asarray(pitch_limits_rad, dtype=float).reshape(4, 2)
     out_dir.mkdir(parents=True, exist_ok=True)
     t = cols["t"]
     paths = [out_dir / f for f in FIGURES]
@@ -41,7 +50,7 @@ def plot_figures(cols: Cols, out_dir: Path, title: str = "") -> list[Path]:
     ax.set_ylabel("y west [m]")
     ax.set_zlabel("z up [m]")
     ax.set_title(f"Fig. 5: 3-D path (NWU){suffix}")
-    ax.legend()
+    ax.legend(loc="upper left", bbox_to_anchor=(0.0, 1.0), fontsize=8, framealpha=0.6)
     fig.savefig(paths[0], dpi=110)
     plt.close(fig)
 
@@ -57,15 +66,28 @@ def plot_figures(cols: Cols, out_dir: Path, title: str = "") -> list[Path]:
         "eps": "longitudinal cyclic",
         "eta": "lateral cyclic",
     }
-    for a, (key, label) in zip(axs, labels.items(), strict=True):
+    for i, (a, (key, label)) in enumerate(zip(axs, labels.items(), strict=True)):
         a.plot(t, cols[key], "b", lw=1.1)
+        for bound in lim[i]:
+            a.axhline(bound, color="r", ls=":", lw=1)  # the servo's limits
         a.set_ylabel(f"{key} [rad]")
         a.set_title(label, fontsize=9)
         a.grid(alpha=0.3)
-    axs[0].set_title(f"Fig. 8: blade pitches{suffix}\nmain collective", fontsize=9)
+    axs[0].set_title(f"Fig. 8: blade pitches, limits dotted{suffix}\nmain collective", fontsize=9)
     axs[-1].set_xlabel("t [s]")
     fig.tight_layout()
     fig.savefig(paths[3], dpi=110)
+    plt.close(fig)
+
+    err = np.sqrt(sum((cols[k] - cols[f"{k}_cmd"]) ** 2 for k in ("x", "y", "z")))
+    fig, ax = plt.subplots(figsize=(8, 3.5))
+    ax.semilogy(t, np.maximum(err, 1e-6), "b", lw=1.1)
+    ax.set_ylabel("|position error| [m]")
+    ax.set_xlabel("t [s]")
+    ax.set_title(f"Fig. 9: 3-D position error{suffix}")
+    ax.grid(alpha=0.3, which="both")
+    fig.tight_layout()
+    fig.savefig(paths[4], dpi=110)
     plt.close(fig)
     return paths
 
@@ -82,8 +104,9 @@ def _tracking_panels(
         a.plot(t, cols[key], "b", lw=1.1, label="actual")
         a.set_ylabel(f"{key} [{unit}]")
         a.grid(alpha=0.3)
-    axs[0].legend(loc="upper right")
-    axs[0].set_title(title)
+    # the legend above the first panel, beside the title: never over the data
+    axs[0].legend(loc="lower right", bbox_to_anchor=(1.0, 1.0), ncol=2, frameon=False, fontsize=8)
+    axs[0].set_title(title, loc="left")
     axs[-1].set_xlabel("t [s]")
     fig.tight_layout()
     fig.savefig(path, dpi=110)

@@ -237,5 +237,6 @@ def test_heli_ground_log_is_read_by_mavlogdump_and_matches_the_autopilot(
     figs = tmp_path / "figs"
     assert cli.main(["plot", str(tlog), "--out", str(figs)]) == 0
     pngs = sorted(p.name for p in figs.glob("*.png"))
-    assert pngs == ["fig5_path3d.png", "fig6_position.png", "fig7_attitude.png", "fig8_controls.png"]
+    assert pngs == ["fig5_path3d.png", "fig6_position.png", "fig7_attitude.png", "fig8_controls.png",
+                    "fig9_error.png"]
     assert all((figs / p).stat().st_size > 10_000 for p in pngs)
