@@ -184,7 +184,8 @@ class FlightManager:
         self._prev_tau = None
         self._current_seq = start_seq
         self._mission_traj = traj if mission and isinstance(traj, WaypointTrajectory) else None
-        self._primary = traj if mission else None
+        if mission:  # the trajectory the error windows measure (not a take-off or landing)
+            self._primary = traj
         self._mission_done = False
         return c.Reply(c.Result.ACCEPTED)
 
