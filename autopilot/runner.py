@@ -31,7 +31,9 @@ from heli_common.state import N_PITCH, PSI, FloatArray
 
 log = logging.getLogger("autopilot.runner")
 LOCKSTEP_SPIN_S = 0.002  # poll this long before sleeping (see MavlinkUdp.wait)
-RESUME_GAP_PERIODS = 10  # real time: a gap this long between ticks is a stall, not jitter
+# real time: a gap longer than this between ticks is a stall (the process stopped, the
+# plant went silent), not scheduling jitter, which the skip logic absorbs
+RESUME_GAP_S = 0.25
 
 class TickService(Protocol):
     """A service the runner drives around each control step (the ground-station link)."""
@@ -124,7 +126,7 @@ class Recorder:
         if self._fh is None or self.n == self._flushed:
             return
         rows = self.record(0.0, {}, start=self._flushed).rows(self._psi_before)
-        write_rows(self._csv, rows)
+        write_rows(self._fh, rows)
         self._fh.flush()
         self._flushed = self.n
         self._psi_before = float(rows[-1, CSV_HEADER.index("psi")])
@@ -363,7 +365,7 @@ class Runner:
             if self.stats.plant_stale:  # nothing is sent that a plant (a new one?) would act on
                 self._idle(t_s)
                 continue
-            if last_tick_wall is not None and wake - last_tick_wall > RESUME_GAP_PERIODS * period:
+            if last_tick_wall is not None and wake - last_tick_wall > max(RESUME_GAP_S, 10 * period):
                 self._resume_after_gap(wake - last_tick_wall - period, t_s)
             last_tick_wall = wake
             self.tick(t_s, latest.x, latest.t_us)

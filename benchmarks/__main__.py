@@ -78,7 +78,10 @@ def main(argv: list[str]) -> int:
         if wanted and not any(w in title.lower() for w in wanted):
             continue
         t1 = time.perf_counter()
-        groups.append((title, fn()))
+        try:
+            groups.append((title, fn()))
+        except Exception as exc:  # one broken group must not hide the others' figures
+            groups.append((title, [Row(f"FAILED: {type(exc).__name__}: {exc}"[:90], math.nan, "")]))
         print(f"  {title}: {time.perf_counter() - t1:.1f} s", file=sys.stderr, flush=True)
     print(table(groups))
     print(f"\n(total {time.perf_counter() - t0:.1f} s, including numba load/compile)")

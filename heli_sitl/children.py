@@ -119,9 +119,10 @@ class Child:
         if self.proc.poll() is None:
             self.proc.kill()
 
-    def stop(self, grace_s: float = 5.0) -> None:
-        """SIGTERM, then SIGKILL after ``grace_s``; output drained in both cases."""
-        self.send_signal(signal.SIGTERM)
+    def stop(self, grace_s: float = 10.0, resend: bool = True) -> None:
+        """SIGTERM (unless already sent), then SIGKILL after ``grace_s``; output drained."""
+        if resend:
+            self.send_signal(signal.SIGTERM)
         try:
             self.proc.wait(timeout=grace_s)
         except subprocess.TimeoutExpired:
@@ -149,7 +150,8 @@ def spawn(
 
 
 def stop_all(children: list[Child]) -> None:
+    """SIGTERM to all at once (they stop in parallel), then wait for each."""
     for c in children:
         c.send_signal(signal.SIGTERM)
     for c in children:
-        c.stop()
+        c.stop(resend=False)
