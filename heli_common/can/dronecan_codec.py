@@ -126,59 +126,6 @@ def _to_frames(transfer: Any) -> list[CanFrame]:
     return [CanFrame(int(f.message_id), bytes(f.bytes)) for f in transfer.to_frames()]
 
 
-class ArrayCommandEncoder:
-    """Encodes pitch vectors as ArrayCommand transfers from one node.
-
-    One dronecan ``ArrayCommand`` object is built once and only its ``command_value``
-    fields change per tick: building the DSDL objects costs ~150 us, reusing them ~30 us.
-    The transfer id counts 0..31 per data type, as DroneCAN requires.
-    """
-
-    def __init__(
-        self,
-        node_id: int,
-        actuator_ids: Sequence[int] = DEFAULT_ACTUATOR_IDS,
-        *,
-        priority: int = PRIORITY_ARRAY_COMMAND,
-    ) -> None:
-        self.node_id = check_node_id(node_id)
-        self.actuator_ids = check_actuator_ids(actuator_ids, len(actuator_ids))
-        if not 1 <= len(self.actuator_ids) <= MAX_COMMANDS_PER_ARRAY:
-            raise ValueError(f"an ArrayCommand carries 1..{MAX_COMMANDS_PER_ARRAY} commands")
-        if not 0 <= priority <= 31:
-            raise ValueError("DroneCAN priority must be in 0..31")
-        self.priority = priority
-        self.transfer_id = 0
-        self._msg: Any = ARRAY_COMMAND(
-            commands=[
-                ACTUATOR_COMMAND(
-                    actuator_id=a, command_type=COMMAND_TYPE_POSITION, command_value=0.0
-                )
-                for a in self.actuator_ids
-            ]
-        )
-        self._commands: list[Any] = list(self._msg.commands)
-
-    def encode(self, values_rad: Sequence[float]) -> list[CanFrame]:
-        """Frames of one transfer carrying ``values_rad`` (same order as the actuator ids).
-
-        Values are sent as given (float16, saturating beyond +-65504; NaN stays NaN): the
-        receiving servo is the gate that refuses bad values, as on a real bus.
-        """
-        if len(values_rad) != len(self._commands):
-            raise ValueError(f"need {len(self._commands)} values, got {len(values_rad)}")
-        for cmd, v in zip(self._commands, values_rad, strict=True):
-            cmd.command_value = float(v)
-        tr = transport.Transfer(
-            transfer_id=self.transfer_id,
-            source_node_id=self.node_id,
-            payload=self._msg,
-            transfer_priority=self.priority,
-        )
-        self.transfer_id = (self.transfer_id + 1) & 0x1F
-        return _to_frames(tr)
-
-
 class _Broadcaster:
     """One message type broadcast by one node: its DSDL object, built once, and the
     transfer id counting 0..31, as DroneCAN requires per data type."""
@@ -198,6 +145,50 @@ class _Broadcaster:
         )
         self.transfer_id = (self.transfer_id + 1) & 0x1F
         return _to_frames(tr)
+
+
+class ArrayCommandEncoder(_Broadcaster):
+    """Encodes pitch vectors as ArrayCommand transfers from one node.
+
+    One dronecan ``ArrayCommand`` object is built once and only its ``command_value``
+    fields change per tick: building the DSDL objects costs ~150 us, reusing them ~30 us.
+    The transfer id counts 0..31 per data type, as DroneCAN requires.
+    """
+
+    def __init__(
+        self,
+        node_id: int,
+        actuator_ids: Sequence[int] = DEFAULT_ACTUATOR_IDS,
+        *,
+        priority: int = PRIORITY_ARRAY_COMMAND,
+    ) -> None:
+        self.actuator_ids = check_actuator_ids(actuator_ids, len(actuator_ids))
+        if not 1 <= len(self.actuator_ids) <= MAX_COMMANDS_PER_ARRAY:
+            raise ValueError(f"an ArrayCommand carries 1..{MAX_COMMANDS_PER_ARRAY} commands")
+        if not 0 <= priority <= 31:
+            raise ValueError("DroneCAN priority must be in 0..31")
+        message = ARRAY_COMMAND(
+            commands=[
+                ACTUATOR_COMMAND(
+                    actuator_id=a, command_type=COMMAND_TYPE_POSITION, command_value=0.0
+                )
+                for a in self.actuator_ids
+            ]
+        )
+        super().__init__(node_id, message, priority)
+        self._commands: list[Any] = list(self._msg.commands)
+
+    def encode(self, values_rad: Sequence[float]) -> list[CanFrame]:
+        """Frames of one transfer carrying ``values_rad`` (same order as the actuator ids).
+
+        Values are sent as given (float16, saturating beyond +-65504; NaN stays NaN): the
+        receiving servo is the gate that refuses bad values, as on a real bus.
+        """
+        if len(values_rad) != len(self._commands):
+            raise ValueError(f"need {len(self._commands)} values, got {len(values_rad)}")
+        for cmd, v in zip(self._commands, values_rad, strict=True):
+            cmd.command_value = float(v)
+        return self._frames()
 
 
 class ArmingStatusEncoder(_Broadcaster):
