@@ -224,3 +224,13 @@ def test_two_instances_fly_side_by_side_and_a_client_sees_both() -> None:
     finally:
         for u in ups:
             u.stop()
+
+
+def test_the_shipped_pymavlink_mode_map_is_the_vehicles() -> None:
+    """configs/pymavlink_custom_mode_map.json (for MAVProxy) names exactly the vehicle's modes."""
+    import json
+
+    from heli_common.config import CONFIG_DIR
+
+    shipped = json.loads((CONFIG_DIR / "pymavlink_custom_mode_map.json").read_text())
+    assert shipped == {str(m2.MAV_TYPE_HELICOPTER): {str(m.custom_mode): m.name for m in wm.MODES}}
