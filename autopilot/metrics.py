@@ -14,7 +14,7 @@ from heli_common.state import EULER, PHI, POS, PSI, THETA, FloatArray
 
 CSV_HEADER = (
     "t", "x", "y", "z", "phi", "theta", "psi",
-    "x_cmd", "y_cmd", "z_cmd", "psi_cmd", "theta_m", "theta_t", "eps", "eta",
+    "x_cmd", "y_cmd", "z_cmd", "psi_cmd", "theta_m", "theta_t", "eps", "eta", "phi_cmd", "theta_cmd",
 )  # fmt: skip
 PITCH_KEYS = ("theta_m", "theta_t", "eps", "eta")
 
@@ -123,16 +123,15 @@ class FlightRecord:
             psi = np.unwrap(np.concatenate([[psi_before], self.x[:, PSI]]))[1:]
         e = self.x[:, EULER].copy()
         e[:, 2] = psi
+        att = self.att_cmd if self.att_cmd is not None else np.full((self.t_s.size, 2), np.nan)
         return np.column_stack(
-            [self.t_s, self.x[:, POS], e, self.ref[:, 0:3], self.psi_cmd, self.pitches]
+            [self.t_s, self.x[:, POS], e, self.ref[:, 0:3], self.psi_cmd, self.pitches, att]
         )
 
     def columns(self) -> dict[str, FloatArray]:
-        """The CSV columns by name (plus phi_cmd/theta_cmd where known), for plotting."""
-        cols = {name: self.rows()[:, i] for i, name in enumerate(CSV_HEADER)}
-        if self.att_cmd is not None:
-            cols["phi_cmd"], cols["theta_cmd"] = self.att_cmd[:, 0], self.att_cmd[:, 1]
-        return cols
+        """The CSV columns by name, for plotting."""
+        rows = self.rows()
+        return {name: rows[:, i] for i, name in enumerate(CSV_HEADER)}
 
     def write_csv(self, path: Path) -> None:
         with path.open("w", newline="") as fh:

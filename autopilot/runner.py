@@ -24,16 +24,23 @@ import numpy as np
 from autopilot.flight.manager import FlightManager
 from autopilot.flight.modes import Mode
 from autopilot.metrics import CSV_HEADER, FlightRecord, write_rows
-from autopilot.tlc.controller import D_PSI_C, N_DIAG, OK, TLController
+from autopilot.tlc.controller import D_PHI_C, D_PSI_C, D_THETA_C, N_DIAG, OK, TLController
 from heli_common.links import ServoOutput, StateSource
 from heli_common.mavlink.sim_protocol import StateSample
-from heli_common.state import N_PITCH, PSI, FloatArray
+from heli_common.state import N_PITCH, PHI, PSI, THETA, FloatArray
 
 log = logging.getLogger("autopilot.runner")
 LOCKSTEP_SPIN_S = 0.002  # poll this long before sleeping (see MavlinkUdp.wait)
 # real time: a gap longer than this between ticks is a stall (the process stopped, the
 # plant went silent), not scheduling jitter, which the skip logic absorbs
 RESUME_GAP_S = 0.25
+
+Euler = tuple[float, float, float]
+
+
+def _euler(x: FloatArray) -> Euler:
+    return float(x[PHI]), float(x[THETA]), float(x[PSI])
+
 
 class TickService(Protocol):
     """A service the runner drives around each control step (the ground-station link)."""
@@ -42,9 +49,11 @@ class TickService(Protocol):
         """Apply what arrived since the last tick (commands, parameter changes)."""
 
     def after_tick(
-        self, t_s: float, x: FloatArray, ref: FloatArray | None, u: FloatArray, psi_cmd_rad: float
+        self, t_s: float, x: FloatArray, ref: FloatArray | None, u: FloatArray, att_cmd_rad: Euler
     ) -> None:
-        """Report the tick (telemetry, events); runs after the command has been sent."""
+        """Report the tick (telemetry, events); runs after the command has been sent.
+        ``att_cmd_rad``: the controller's roll, pitch and yaw commands (FLU), or the
+        attitude itself while it commands none."""
 
     def between_ticks(self, t_s: float, x: FloatArray) -> None:
         """Receive and parse input, with a bounded budget; also runs while the plant is
@@ -227,9 +236,10 @@ class Runner:
         if t_us is not None:
             self.servo_out.send_pitches(t_us, self.u, self.flight.armed)
         self.manager.post_tick(t_s, x)
-        psi_cmd = float(self.ctrl.diag[D_PSI_C]) if ref is not None else float(x[PSI])
+        d = self.ctrl.diag
+        att_cmd = _euler(x) if ref is None else (float(d[D_PHI_C]), float(d[D_THETA_C]), float(d[D_PSI_C]))
         for s in self.services:
-            s.after_tick(t_s, x, ref, self.u, psi_cmd)
+            s.after_tick(t_s, x, ref, self.u, att_cmd)
         self.service(t_s, x)
         if self.recorder is not None:  # after the command went out
             self.recorder.flush_if_due()
@@ -247,7 +257,7 @@ class Runner:
             return
         for s in self.services:
             s.between_ticks(t_s, self._last_x)
-            s.after_tick(t_s, self._last_x, None, self.u, float(self._last_x[PSI]))
+            s.after_tick(t_s, self._last_x, None, self.u, _euler(self._last_x))
 
     def _new_plant_session(self, s: StateSample) -> None:
         """The plant's clock went back: a restarted plant. Start over with it."""

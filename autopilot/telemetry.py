@@ -34,6 +34,20 @@ def position_target(t_us: int, ref: FloatArray, psi_cmd_rad: float) -> Message:
     )
 
 
+def attitude_target(t_us: int, att_cmd_flu_rad: tuple[float, float, float]) -> Message:
+    """The controller's attitude command (FLU Euler -> FRD quaternion), as PX4 reports its
+    attitude set point; rates and thrust are not commanded by the TLC's outer loops."""
+    roll, pitch, yaw = frames.euler_flu_to_frd(att_cmd_flu_rad)
+    mask = (
+        mavlink2.ATTITUDE_TARGET_TYPEMASK_BODY_ROLL_RATE_IGNORE
+        | mavlink2.ATTITUDE_TARGET_TYPEMASK_BODY_PITCH_RATE_IGNORE
+        | mavlink2.ATTITUDE_TARGET_TYPEMASK_BODY_YAW_RATE_IGNORE
+        | mavlink2.ATTITUDE_TARGET_TYPEMASK_THROTTLE_IGNORE
+    )
+    q = frames.euler_to_quaternion(roll, pitch, yaw)
+    return mavlink2.MAVLink_attitude_target_message(t_us // 1000, mask, q, 0.0, 0.0, 0.0, 0.0)
+
+
 def servo_output(t_us: int, pitches_rad: FloatArray, limits: FloatArray) -> Message:
     pwm = [int(p) for p in servo_map.to_pwm_us(pitches_rad, limits)] + [0] * 4
     return mavlink2.MAVLink_servo_output_raw_message(t_us & 0xFFFFFFFF, 0, *pwm)

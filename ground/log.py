@@ -7,8 +7,12 @@ received (heli_common.mavlink.udp.TlogWriter; ``mavlogdump.py`` reads it).
 Columns (:data:`autopilot.metrics.CSV_HEADER`, the paper's NWU/FLU frames, SI units), one
 row per LOCAL_POSITION_NED of the vehicle:
 
-* ``t``: the vehicle's clock (LOCAL_POSITION_NED.time_boot_ms) [s] - the time the
-  controller saw, not the reception time, so network jitter does not bend the curves.
+* ``t``: flight time [s], as in ``run.csv``: the vehicle's clock (LOCAL_POSITION_NED
+  .time_boot_ms, the time the controller saw, not the reception time, so network jitter
+  does not bend the curves) minus the arming tick's. The vehicle sends a HEARTBEAT and that
+  tick's LOCAL_POSITION_NED in the tick it arms, so the first LOCAL_POSITION_NED after the
+  first armed HEARTBEAT is t = 0. A log with no arming in it keeps the time since boot
+  (:func:`tlog_time_origin` says which).
 * ``x, y, z``: LOCAL_POSITION_NED converted NED -> NWU (heli_common.frames).
 * ``phi, theta, psi``: the ATTITUDE of the same tick (FRD -> FLU); psi unwrapped, as run.csv.
 * ``x_cmd, y_cmd, z_cmd``: POSITION_TARGET_LOCAL_NED (10 Hz) interpolated linearly to the
@@ -18,6 +22,8 @@ row per LOCAL_POSITION_NED of the vehicle:
 * ``psi_cmd``: POSITION_TARGET_LOCAL_NED.yaw, the controller's own yaw command (FRD ->
   FLU), unwrapped and resampled like the targets; NaN where the vehicle gives none (a
   type_mask with POSITION_TARGET_TYPEMASK_YAW_IGNORE, or no target: disarmed).
+* ``phi_cmd, theta_cmd``: ATTITUDE_TARGET (10 Hz, FRD quaternion -> FLU Euler), the
+  controller's roll and pitch commands, resampled like the targets; NaN without one.
 * ``theta_m, theta_t, eps, eta``: SERVO_OUTPUT_RAW (10 Hz, resampled like the targets)
   mapped back through the inverse of heli_common.servo_map.to_pwm_us with the airframe's
   pitch limits (or the LIM_* parameters seen in the log); the PWM quantum of 1 us is
@@ -44,7 +50,8 @@ from heli_common.airframe import Airframe
 from heli_common.mavlink.udp import Message, TlogWriter, mavlink2
 from heli_common.state import FloatArray
 
-__all__ = ["STALE_S", "TlogError", "TlogStats", "TlogWriter", "read_tlog", "tlog_columns", "write_csv"]
+__all__ = ["STALE_S", "TlogError", "TlogStats", "TlogWriter", "read_tlog", "tlog_columns", "tlog_time_origin",
+           "write_csv"]
 
 Columns = dict[str, npt.NDArray[np.float64]]
 STALE_S = 0.35  # a 10 Hz message older than this (3.5 periods) is not "the current" one
@@ -134,25 +141,36 @@ def _streams(path: Path | str, system_id: int, limits0: FloatArray) -> dict[str,
     each moment (the limits can change while disarmed), starting from the airframe's.
     """
     limits = limits0.copy()
+    arming_seen = False
+    t_arm_s: float | None = None
     rows: list[list[float]] = []  # t, x, y, z (NWU), phi, theta, psi (FLU)
     tgt: list[list[float]] = []  # t, pos, vel, acc (NWU), psi command (NaN: not given)
     srv: list[list[float]] = []  # t, theta_m, theta_t, eps, eta
+    att: list[list[float]] = []  # t, phi and theta commands (FLU)
     last_att: tuple[float, float, float] | None = None
     for _, m in read_tlog(path):
         if m.get_srcSystem() != system_id:
             continue
         kind = m.get_type()
-        if kind == "ATTITUDE":
+        if kind == "HEARTBEAT" and m.get_srcComponent() == 1:
+            arming_seen = arming_seen or bool(m.base_mode & mavlink2.MAV_MODE_FLAG_SAFETY_ARMED)
+        elif kind == "ATTITUDE":
             # The vehicle sends ATTITUDE and LOCAL_POSITION_NED of one tick together.
             last_att = frames.euler_frd_to_flu((m.roll, m.pitch, m.yaw))
         elif kind == "LOCAL_POSITION_NED" and last_att is not None:
             rows.append([m.time_boot_ms / 1e3, *frames.ned_to_nwu((m.x, m.y, m.z)), *last_att])
+            if arming_seen and t_arm_s is None:
+                t_arm_s = rows[-1][0]
         elif kind == "POSITION_TARGET_LOCAL_NED":
             yaw_given = not m.type_mask & mavlink2.POSITION_TARGET_TYPEMASK_YAW_IGNORE
             psi = frames.euler_frd_to_flu((0.0, 0.0, m.yaw))[2] if yaw_given else math.nan
             tgt.append([m.time_boot_ms / 1e3, *frames.ned_to_nwu((m.x, m.y, m.z)),
                         *frames.ned_to_nwu((m.vx, m.vy, m.vz)), *frames.ned_to_nwu((m.afx, m.afy, m.afz)),
                         psi])  # fmt: skip
+        elif kind == "ATTITUDE_TARGET":
+            if not m.type_mask & mavlink2.ATTITUDE_TARGET_TYPEMASK_ATTITUDE_IGNORE:
+                phi, theta, _ = frames.euler_frd_to_flu(frames.quaternion_to_euler(m.q))
+                att.append([m.time_boot_ms / 1e3, phi, theta])
         elif kind == "SERVO_OUTPUT_RAW":
             pwm = np.array([m.servo1_raw, m.servo2_raw, m.servo3_raw, m.servo4_raw], dtype=float)
             n = (pwm - servo_map.PWM_CENTRE_US) / servo_map.PWM_HALF_RANGE_US
@@ -170,6 +188,8 @@ def _streams(path: Path | str, system_id: int, limits0: FloatArray) -> dict[str,
         "rows": np.array(rows, dtype=float).reshape(-1, 7),
         "target": np.array(tgt, dtype=float).reshape(-1, 11),
         "servo": np.array(srv, dtype=float).reshape(-1, 5),
+        "att_cmd": np.array(att, dtype=float).reshape(-1, 3),
+        "t_arm_s": t_arm_s,
     }
 
 
@@ -197,20 +217,33 @@ def tlog_columns(
     """The run.csv columns (see the module docstring) from the vehicle's telemetry in a tlog."""
     af = airframe or Airframe.load()
     st = _streams(path, system_id, servo_map.limits_array(af.limits.as_tuple()))
-    rows, tgt, srv = st["rows"], st["target"], st["servo"]
+    rows, tgt, srv, att = st["rows"], st["target"], st["servo"], st["att_cmd"]
+    t0 = st["t_arm_s"] or 0.0
+    for a in (rows, tgt, srv, att):
+        a[:, 0] -= t0
     t = rows[:, 0]
     given = ~np.isnan(tgt[:, 10])
     tgt[given, 10] = np.unwrap(tgt[given, 10])  # a continuous yaw command resamples right
     cmd = _resample(t, tgt[:, 0], tgt[:, 1:])
     pitches = _resample(t, srv[:, 0], srv[:, 1:])
+    att_cmd = _resample(t, att[:, 0], att[:, 1:])
     psi_cmd = cmd[:, 9]
     cols = {
         "t": t, "x": rows[:, 1], "y": rows[:, 2], "z": rows[:, 3],
         "phi": rows[:, 4], "theta": rows[:, 5], "psi": np.unwrap(rows[:, 6]) if t.size else rows[:, 6],
         "x_cmd": cmd[:, 0], "y_cmd": cmd[:, 1], "z_cmd": cmd[:, 2], "psi_cmd": psi_cmd,
         "theta_m": pitches[:, 0], "theta_t": pitches[:, 1], "eps": pitches[:, 2], "eta": pitches[:, 3],
+        "phi_cmd": att_cmd[:, 0], "theta_cmd": att_cmd[:, 1],
     }  # fmt: skip
     return {k: np.ascontiguousarray(cols[k], dtype=float) for k in CSV_HEADER}
+
+
+def tlog_time_origin(path: Path | str, *, system_id: int = 1) -> float | None:
+    """The vehicle time since boot [s] at which it armed first in this log (the t = 0 of
+    :func:`tlog_columns`), or None if the log holds no arming (t is then time since boot)."""
+    st = _streams(path, system_id, servo_map.limits_array(Airframe.load().limits.as_tuple()))
+    t_arm: float | None = st["t_arm_s"]
+    return t_arm
 
 
 def _unwrap_us32(t_us32: int, near_s: float) -> float:

@@ -25,7 +25,7 @@ from autopilot import telemetry
 from autopilot.metrics import CSV_HEADER
 from ground import cli
 from ground.files import write_waypoints
-from ground.log import TlogError, TlogStats, read_tlog, tlog_columns
+from ground.log import TlogError, TlogStats, read_tlog, tlog_columns, tlog_time_origin
 from heli_common import servo_map
 from heli_common.airframe import Airframe
 from heli_common.geo import GeoPoint, nwu_to_geo
@@ -195,11 +195,11 @@ def test_heli_ground_log_is_read_by_mavlogdump_and_matches_the_autopilot(
     (whole,) = [k for k in summary["rms_pos_err_m"] if k.startswith("0-")]
     assert float(whole.split("-")[1]) < run["t"][-1] - 1.0, whole
     assert summary["max_pos_err_40_45_m"] is None and summary["scenario"] is None
-    # run.csv counts flight time from arming, the telemetry the vehicle's clock from boot:
-    # find the arming time (a whole number of 10 ms ticks) that lines the two records up.
+    # one time base: the tlog's columns count flight time from the arming tick, as run.csv
     ours_ms = np.round(cols["t"] * 1e3).astype(int)
     run_ms = np.round(run["t"] * 1e3).astype(int)
-    armed_at = int(ours_ms[np.flatnonzero(~np.isnan(cols["x_cmd"]))[0]])
+    t_arm = tlog_time_origin(tlog)
+    assert t_arm is not None
 
     def matched(offset_ms: int) -> tuple[np.ndarray, np.ndarray]:
         _, i, j = np.intersect1d(ours_ms, run_ms + offset_ms, return_indices=True)
@@ -210,10 +210,12 @@ def test_heli_ground_log_is_read_by_mavlogdump_and_matches_the_autopilot(
         i, j = matched(offset_ms)
         return float(np.mean(np.abs(cols["z"][i] - run["z"][j]) + np.abs(cols["x"][i] - run["x"][j])))
 
-    offset = min(range(armed_at - 500, armed_at + 500, 10), key=misfit)
+    offset = min(range(-500, 500, 10), key=misfit)
+    assert offset == 0, f"the tlog's t = 0 is {offset} ms off run.csv's"
+    assert np.isnan(cols["x_cmd"][cols["t"] < 0]).all()  # disarmed before t = 0: no target
     i_ours, i_run = matched(offset)
     assert i_ours.size > 200
-    print(f"armed at vehicle time {offset / 1e3:.2f} s; {i_ours.size} rows compared")
+    print(f"armed at vehicle time {t_arm:.2f} s; {i_ours.size} rows compared")
     dev = {k: np.abs(cols[k][i_ours] - run[k][i_run]) for k in CSV_HEADER[1:]}
     for k in ("psi", "psi_cmd"):  # angles: compared modulo 2 pi
         dev[k] = np.abs(np.angle(np.exp(1j * (cols[k][i_ours] - run[k][i_run]))))
@@ -232,6 +234,8 @@ def test_heli_ground_log_is_read_by_mavlogdump_and_matches_the_autopilot(
         assert np.median(dev[k]) < 0.5 * quantum + 1e-9, k  # exact on the 10 Hz samples
     assert np.median(dev["psi_cmd"]) < 1e-5  # the controller's own yaw command, sent
     assert np.percentile(dev["psi_cmd"], 95) < 0.01
+    for k in ("phi_cmd", "theta_cmd"):  # ATTITUDE_TARGET: the commands of Fig 7, at 10 Hz
+        assert np.median(dev[k]) < 1e-5 and np.percentile(dev[k], 95) < 0.01, k
 
     # --- heli-ground plot
     figs = tmp_path / "figs"

@@ -46,8 +46,10 @@ log = logging.getLogger(__name__)
 
 #: ArduPilot's default node id for the autopilot; any 1..127 works
 DEFAULT_NODE_ID = 10
-#: frames read and discarded per send, so a shared bus cannot grow this node's receive
-#: queue without bound (the sender listens to nobody; on udp_multicast it hears itself)
+#: frames read and discarded per send on a python-can ``virtual`` bus, whose receive queue
+#: is unbounded: the sender listens to nobody, and a shared bus must not grow its queue.
+#: udp_multicast (where it hears its own frames) and socketcan queue in a kernel socket
+#: buffer that is bounded and drops the oldest traffic by itself: nothing to drain there.
 RX_DRAIN_PER_SEND = 16
 
 SENDER_STAT_KEYS = (
@@ -100,6 +102,7 @@ class CanServoSender(Closing):
         self._log = RateLimitedLog(log, log_interval_s)
         self._owns_bus = not isinstance(bus, CanBus)
         self.bus = bus if isinstance(bus, CanBus) else open_bus(bus)
+        self._drains = self.bus.config.interface == "virtual"
 
     def send(self, pitches_rad: npt.ArrayLike, t_s: float, armed: bool | None = None) -> bool:
         """Send this tick's pitches [rad] (and NodeStatus when due; ArmingStatus, when
@@ -110,7 +113,8 @@ class CanServoSender(Closing):
             raise ValueError(f"need {N_PITCH} pitches, got shape {np.shape(pitches_rad)}")
         if self.start_s is None:
             self.start_s = t_s
-        self._drain(t_s)
+        if self._drains:
+            self._drain(t_s)
         if armed is not None and (armed != self._armed_sent or t_s >= self._next_arming_s):
             if self._send_frames(self.arming.encode(armed), "ArmingStatus", "send_errors", t_s):
                 self.stats["arming_status_sent"] += 1

@@ -27,6 +27,7 @@ from autopilot.flight_log import heartbeat
 from autopilot.links.mavlink_modes import COMMAND, REPORTED
 from autopilot.mission.server import MissionServer
 from autopilot.params_table import ParamTable
+from autopilot.runner import Euler
 from autopilot.trajectory.waypoints import FlightLimits
 from autopilot.trajectory_codec import check_mission
 from heli_common import frames
@@ -80,6 +81,7 @@ DEFAULT_RATES_HZ: dict[int, float] = {
     m2.MAVLINK_MSG_ID_HOME_POSITION: 0.5,
     m2.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 1.0,
     m2.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED: 10.0,
+    m2.MAVLINK_MSG_ID_ATTITUDE_TARGET: 10.0,
     m2.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW: 10.0,
     m2.MAVLINK_MSG_ID_MISSION_CURRENT: 1.0,
     m2.MAVLINK_MSG_ID_VFR_HUD: 4.0,
@@ -178,8 +180,9 @@ class GcsService:
         self._x: FloatArray = np.zeros(12)
         self._ref: FloatArray | None = None
         self._u: FloatArray = np.zeros(4)
-        self._psi_cmd = 0.0
+        self._att_cmd: Euler = (0.0, 0.0, 0.0)
         self._broken: set[int] = set()
+        self._armed_sent = False
         self._errors = RateLimitedLog(log, interval_s=10.0)
         self.handler_errors = 0
         self._pending: list[_Pending] = []
@@ -219,10 +222,17 @@ class GcsService:
         self._send_all(self.missions.tick(t_s))
 
     def after_tick(
-        self, t_s: float, x: FloatArray, ref: FloatArray | None, u: FloatArray, psi_cmd_rad: float
+        self, t_s: float, x: FloatArray, ref: FloatArray | None, u: FloatArray, att_cmd_rad: Euler
     ) -> None:
         """After the command was sent: the flight's events, and telemetry."""
-        self._t, self._x, self._ref, self._u, self._psi_cmd = t_s, x, ref, u, psi_cmd_rad
+        self._t, self._x, self._ref, self._u, self._att_cmd = t_s, x, ref, u, att_cmd_rad
+        armed = self.manager.armed if self.manager else False
+        if armed != self._armed_sent:
+            # a change of arming goes out in the tick it happens, with a fresh telemetry
+            # grid: the heartbeat, then this tick's ATTITUDE and LOCAL_POSITION_NED, so a
+            # log places the arming on its tick (ground.log's time origin, run.csv's t = 0)
+            self._armed_sent = armed
+            self.next_due.clear()
         self._report_events()
         self._telemetry()
 
@@ -329,7 +339,11 @@ class GcsService:
         if msg_id == m2.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED:
             if self._ref is None:
                 return None
-            return telemetry.position_target(t_us, self._ref, self._psi_cmd)
+            return telemetry.position_target(t_us, self._ref, self._att_cmd[2])
+        if msg_id == m2.MAVLINK_MSG_ID_ATTITUDE_TARGET:
+            if self._ref is None:
+                return None
+            return telemetry.attitude_target(t_us, self._att_cmd)
         if msg_id == m2.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW:
             return telemetry.servo_output(t_us, self._u, self.limits)
         if msg_id == m2.MAVLINK_MSG_ID_MISSION_CURRENT:

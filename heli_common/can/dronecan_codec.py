@@ -24,6 +24,12 @@ dies on the first frame), and it passes the receive timeout in milliseconds to
 :class:`DronecanDriver` is a corrected driver for running dronecan's own ``Node`` on
 such a bus (the interoperability test decodes the autopilot's commands that way).
 
+The two per-tick types (ArrayCommand, ArmingStatus) are packed and unpacked here with
+precompiled ``struct`` layouts, float16 conversion that reproduces libuavcan's rounding bit
+for bit, and the transfer CRC from ``binascii.crc_hqx`` (CRC-16-CCITT, seeded with the data
+type's signature CRC): no DSDL object is built per tick. The tests check every byte
+against dronecan's own serialisation, both ways. NodeStatus (1 Hz) goes through dronecan.
+
 The receiving side does its own reassembly (:class:`Reassembler`) rather than
 dronecan's ``TransferManager``: that one reads the wall clock, keys sessions by transfer
 id so a lost end frame leaves a session behind, and cannot say *why* a transfer was
@@ -34,19 +40,20 @@ dronecan's ``Transfer.from_frames`` for decoding.
 
 from __future__ import annotations
 
+import binascii
 import enum
 import math
+import struct
 import time
 from collections import Counter
 from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import can
 import dronecan
 from dronecan import transport
 from dronecan.driver.common import AbstractDriver, CANFrame
-from dronecan.dsdl import common as dsdl_common
 
 from heli_common.can.bus import CanBus
 
@@ -109,11 +116,42 @@ def check_actuator_ids(ids: Sequence[int], n: int = 4) -> tuple[int, ...]:
     return out
 
 
+_F32 = struct.Struct("<f")
+_U32 = struct.Struct("<I")
+_F16 = struct.Struct("<e")
+_F32_INF_BITS = 0x7F800000
+_F16_INF_AS_F32_BITS = 31 << 23
+
+
+def float16_bits(value: float) -> int:
+    """The float16 bit pattern dronecan puts on the wire for ``value``: saturated to
+    +-65504 (the DSDL ``saturated float16`` cast; NaN passes), then libuavcan's float32 ->
+    float16 conversion (round to nearest, ties away from zero; NaN -> 0x7FFF with sign)."""
+    if value > FLOAT16_MAX:
+        value = FLOAT16_MAX
+    elif value < -FLOAT16_MAX:
+        value = -FLOAT16_MAX
+    u = _U32.unpack(_F32.pack(value))[0]
+    sign = u & 0x80000000
+    u ^= sign
+    if u >= _F32_INF_BITS:
+        out = 0x7FFF if u > _F32_INF_BITS else 0x7C00
+    else:
+        # keep the rounding bit, scale the exponent by 2**-112 in float32, add the rounding bit
+        f = _F32.unpack(_U32.pack(u & 0xFFFFF000))[0] * 2.0**-112
+        u = _U32.unpack(_F32.pack(f))[0] + 0x1000
+        out = (min(u, _F16_INF_AS_F32_BITS) >> 13) & 0xFFFF
+    return int(out | (sign >> 16))
+
+
+def float16_value(bits: int) -> float:
+    """The value of a float16 bit pattern (exact; inf and NaN survive)."""
+    return float(_F16.unpack(bits.to_bytes(2, "little"))[0])
+
+
 def float16_round(value: float) -> float:
     """``value`` as it arrives after a trip through a DroneCAN float16 (dronecan's rounding)."""
-    cmd = ACTUATOR_COMMAND()
-    cmd.command_value = float(value)
-    return float(cmd.command_value)
+    return float16_value(float16_bits(float(value)))
 
 
 def float16_tolerance(value: float) -> float:
@@ -126,34 +164,72 @@ def _to_frames(transfer: Any) -> list[CanFrame]:
     return [CanFrame(int(f.message_id), bytes(f.bytes)) for f in transfer.to_frames()]
 
 
+def message_can_id(priority: int, data_type_id: int, source_node_id: int) -> int:
+    """The 29-bit identifier of a DroneCAN message frame."""
+    return (priority << 24) | (data_type_id << 8) | source_node_id
+
+
+def transfer_crc(payload: bytes, base_crc: int) -> int:
+    """DroneCAN's multi-frame transfer CRC: CRC-16-CCITT of the payload, seeded with the
+    data type's signature CRC (what dronecan's ``crc16_from_bytes`` computes, in C)."""
+    return binascii.crc_hqx(payload, base_crc)
+
+
+def frames_of_transfer(can_id: int, payload: bytes, transfer_id: int, base_crc: int) -> list[CanFrame]:
+    """Split one message transfer into CAN frames: a single frame up to 7 bytes, else the
+    transfer CRC first and 7 bytes per frame, each with its tail byte (start, end, toggle,
+    transfer id)."""
+    if len(payload) <= 7:
+        return [CanFrame(can_id, payload + bytes((0xC0 | transfer_id,)))]
+    crc = transfer_crc(payload, base_crc)
+    buf = bytes((crc & 0xFF, crc >> 8)) + payload
+    n = (len(buf) + 6) // 7
+    frames = []
+    for i in range(n):
+        tail = ((i & 1) << 5) | transfer_id
+        if i == 0:
+            tail |= 0x80
+        if i == n - 1:
+            tail |= 0x40
+        frames.append(CanFrame(can_id, buf[7 * i : 7 * i + 7] + bytes((tail,))))
+    return frames
+
+
 class _Broadcaster:
-    """One message type broadcast by one node: its DSDL object, built once, and the
-    transfer id counting 0..31, as DroneCAN requires per data type."""
+    """One message type broadcast by one node: its identifier, and the transfer id counting
+    0..31, as DroneCAN requires per data type."""
 
     def __init__(self, node_id: int, message: Any, priority: int) -> None:
         self.node_id = check_node_id(node_id)
         self.priority = priority
         self.transfer_id = 0
         self._msg: Any = message
+        self._can_id = message_can_id(priority, int(message._type.default_dtid), self.node_id)
+        self._base_crc = int(message._type.base_crc)
+
+    def _next_tid(self) -> int:
+        tid = self.transfer_id
+        self.transfer_id = (tid + 1) & 0x1F
+        return tid
 
     def _frames(self) -> list[CanFrame]:
+        """The frames of the DSDL object, serialised by dronecan (for the rare messages)."""
         tr = transport.Transfer(
-            transfer_id=self.transfer_id,
+            transfer_id=self._next_tid(),
             source_node_id=self.node_id,
             payload=self._msg,
             transfer_priority=self.priority,
         )
-        self.transfer_id = (self.transfer_id + 1) & 0x1F
         return _to_frames(tr)
+
+    def _frames_of(self, payload: bytes) -> list[CanFrame]:
+        """The frames of an already packed payload (the per-tick messages)."""
+        return frames_of_transfer(self._can_id, payload, self._next_tid(), self._base_crc)
 
 
 class ArrayCommandEncoder(_Broadcaster):
-    """Encodes pitch vectors as ArrayCommand transfers from one node.
-
-    One dronecan ``ArrayCommand`` object is built once and only its ``command_value``
-    fields change per tick: building the DSDL objects costs ~150 us, reusing them ~30 us.
-    The transfer id counts 0..31 per data type, as DroneCAN requires.
-    """
+    """Encodes pitch vectors as ArrayCommand transfers from one node, packed with one
+    precompiled struct (no DSDL object per tick). The transfer id counts 0..31."""
 
     def __init__(
         self,
@@ -167,16 +243,12 @@ class ArrayCommandEncoder(_Broadcaster):
             raise ValueError(f"an ArrayCommand carries 1..{MAX_COMMANDS_PER_ARRAY} commands")
         if not 0 <= priority <= 31:
             raise ValueError("DroneCAN priority must be in 0..31")
-        message = ARRAY_COMMAND(
-            commands=[
-                ACTUATOR_COMMAND(
-                    actuator_id=a, command_type=COMMAND_TYPE_POSITION, command_value=0.0
-                )
-                for a in self.actuator_ids
-            ]
-        )
-        super().__init__(node_id, message, priority)
-        self._commands: list[Any] = list(self._msg.commands)
+        super().__init__(node_id, ARRAY_COMMAND(), priority)
+        # per command: uint8 actuator id, uint8 command type, float16 value (little endian);
+        # the array is the message's last field, so its length is implied (tail array
+        # optimisation) and the payload is exactly 4 bytes per command
+        self._layout = struct.Struct("<" + "BBH" * len(self.actuator_ids))
+        self._n = len(self.actuator_ids)
 
     def encode(self, values_rad: Sequence[float]) -> list[CanFrame]:
         """Frames of one transfer carrying ``values_rad`` (same order as the actuator ids).
@@ -184,11 +256,12 @@ class ArrayCommandEncoder(_Broadcaster):
         Values are sent as given (float16, saturating beyond +-65504; NaN stays NaN): the
         receiving servo is the gate that refuses bad values, as on a real bus.
         """
-        if len(values_rad) != len(self._commands):
-            raise ValueError(f"need {len(self._commands)} values, got {len(values_rad)}")
-        for cmd, v in zip(self._commands, values_rad, strict=True):
-            cmd.command_value = float(v)
-        return self._frames()
+        if len(values_rad) != self._n:
+            raise ValueError(f"need {self._n} values, got {len(values_rad)}")
+        fields: list[int] = []
+        for aid, v in zip(self.actuator_ids, values_rad, strict=True):
+            fields += (aid, COMMAND_TYPE_POSITION, float16_bits(float(v)))
+        return self._frames_of(self._layout.pack(*fields))
 
 
 class ArmingStatusEncoder(_Broadcaster):
@@ -199,8 +272,7 @@ class ArmingStatusEncoder(_Broadcaster):
         super().__init__(node_id, ARMING_STATUS(), priority)
 
     def encode(self, armed: bool) -> list[CanFrame]:
-        self._msg.status = ARMING_STATUS_FULL if armed else ARMING_STATUS_DISARMED
-        return self._frames()
+        return self._frames_of(bytes((ARMING_STATUS_FULL if armed else ARMING_STATUS_DISARMED,)))
 
 
 class NodeStatusEncoder(_Broadcaster):
@@ -270,11 +342,46 @@ class ReceivedTransfer:
     payload: Any  # the dronecan CompoundValue (e.g. ArrayCommand)
 
 
+class ArrayCommandPayload(NamedTuple):
+    """A decoded ArrayCommand: (actuator id, command type, value) per command."""
+
+    commands: tuple[tuple[int, int, float], ...]
+
+
+class ArmingStatusPayload(NamedTuple):
+    status: int
+
+
+def decode_array_command(payload: bytes) -> ArrayCommandPayload:
+    """Unpack an ArrayCommand payload (4 bytes per command, the length implied)."""
+    if len(payload) % 4:
+        raise ValueError(f"{len(payload)} bytes is not a whole number of 4-byte commands")
+    return ArrayCommandPayload(
+        tuple(
+            (aid, ctype, float16_value(bits))
+            for aid, ctype, bits in struct.iter_unpack("<BBH", payload)
+        )
+    )
+
+
+def decode_arming_status(payload: bytes) -> ArmingStatusPayload:
+    if not payload:
+        raise ValueError("empty ArmingStatus")
+    return ArmingStatusPayload(payload[0])
+
+
+#: the per-tick types, unpacked without dronecan (the rest go through Transfer.from_frames)
+FAST_DECODERS: dict[int, Callable[[bytes], Any]] = {
+    ARRAY_COMMAND_DTID: decode_array_command,
+    ARMING_STATUS_DTID: decode_arming_status,
+}
+
+
 @dataclass
 class _Session:
     transfer_id: int
     next_toggle: int
-    frames: list[Any] = field(default_factory=list)  # dronecan transport.Frame
+    frames: list[tuple[int, bytes]] = field(default_factory=list)  # (can id, data)
     n_bytes: int = 0
 
 
@@ -349,7 +456,7 @@ class Reassembler:
         sot, eot, toggle, tid = bool(tail & 0x80), bool(tail & 0x40), (tail >> 5) & 1, tail & 0x1F
         key = (fields.source_node_id, fields.data_type_id)
         who = _who(fields, tid)
-        frame = transport.Frame(can_id, data)
+        frame = (can_id, data)
         if sot:
             self._orphans.pop(key, None)
             old = self._sessions.pop(key, None)
@@ -397,36 +504,45 @@ class Reassembler:
         return self._complete(fields, tid, session.frames)
 
     def _complete(
-        self, fields: CanIdFields, tid: int, frames: list[Any]
+        self, fields: CanIdFields, tid: int, frames: list[tuple[int, bytes]]
     ) -> ReceivedTransfer | None:
         dt = self.types[fields.data_type_id]
         who = _who(fields, tid)
         if len(frames) > 1:
             # checked here (not only inside dronecan's from_frames) to count it as a CRC fault
-            raw = b"".join(bytes(f.bytes[:-1]) for f in frames)
+            raw = b"".join(data[:-1] for _, data in frames)
             if len(raw) < 2:
                 self._drop(DropReason.DECODE, f"{who}: {len(raw)} bytes, shorter than its CRC")
                 return None
             crc_rx = raw[0] | (raw[1] << 8)
-            crc = dsdl_common.crc16_from_bytes(raw[2:], initial=dt.base_crc)
+            payload = raw[2:]
+            crc = transfer_crc(payload, dt.base_crc)
             if crc != crc_rx:
                 self._drop(DropReason.CRC, f"{who}: CRC 0x{crc_rx:04x}, computed 0x{crc:04x}")
                 return None
-        tr = transport.Transfer()
+        else:
+            payload = frames[0][1][:-1]
         try:
-            tr.from_frames(frames)
+            fast = FAST_DECODERS.get(fields.data_type_id)
+            if fast is not None:
+                value = fast(payload)
+            else:
+                tr = transport.Transfer()
+                tr.from_frames([transport.Frame(can_id, data) for can_id, data in frames])
+                value = tr.payload
         except Exception as exc:
             # dronecan raises TransferError, ValueError or IndexError on a short or
             # inconsistent payload; any of them means the transfer is unusable, not fatal
             self._drop(DropReason.DECODE, f"{who}: {type(exc).__name__}: {exc}")
             return None
-        return ReceivedTransfer(
-            fields.source_node_id, fields.data_type_id, tid, fields.priority, tr.payload
-        )
+        return ReceivedTransfer(fields.source_node_id, fields.data_type_id, tid, fields.priority, value)
 
 
 def array_command_entries(payload: Any) -> list[tuple[int, int, float]]:
-    """(actuator id, command type, value) for each command of a decoded ArrayCommand."""
+    """(actuator id, command type, value) for each command of a decoded ArrayCommand
+    (ours, or a dronecan object)."""
+    if isinstance(payload, ArrayCommandPayload):
+        return list(payload.commands)
     return [
         (int(c.actuator_id), int(c.command_type), float(c.command_value))
         for c in payload.commands

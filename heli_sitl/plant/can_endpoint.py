@@ -75,6 +75,7 @@ log = logging.getLogger(__name__)
 
 #: ten control periods at 100 Hz
 DEFAULT_TIMEOUT_S = 0.1
+LOCKSTEP_SPIN_S = 0.002  # a lockstep wait polls this long before it sleeps
 #: one float16 step (2**-10 relative): the margin past a limit still taken as rounding
 LIMIT_TOLERANCE_REL = 2.0**-10
 
@@ -171,11 +172,22 @@ class CanServoEndpoint(Closing):
         if self.first_poll_s is None:
             self.first_poll_s = now_s
         applied0 = self.stats["commands_applied"]
-        deadline = time.monotonic() + wait_s if wait_s > 0.0 else None
-        for _ in range(self.max_frames_per_poll):
+        start = time.monotonic()
+        deadline = start + max(wait_s, 0.0)
+        # while waiting, poll without sleeping for a short while first: the three frames of
+        # a command arrive tens of microseconds apart, and a process put to sleep between
+        # them pays a scheduler wake-up per frame
+        spin_until = start + min(wait_s, LOCKSTEP_SPIN_S)
+        frames = 0
+        while frames < self.max_frames_per_poll:
             timeout_s = 0.0
-            if deadline is not None and self.stats["commands_applied"] == applied0:
-                timeout_s = max(0.0, deadline - time.monotonic())
+            waiting = wait_s > 0.0 and self.stats["commands_applied"] == applied0
+            if waiting:
+                now = time.monotonic()
+                if now >= deadline:
+                    waiting = False
+                elif now >= spin_until:
+                    timeout_s = deadline - now
             try:
                 msg = self.bus.recv(timeout_s)
             except CanBusError as exc:
@@ -187,7 +199,10 @@ class CanServoEndpoint(Closing):
                 )  # fmt: skip
                 break
             if msg is None:
+                if waiting:
+                    continue
                 break
+            frames += 1
             self.stats["frames_rx"] += 1
             received = self._reassembler.feed_message(msg)
             if received is not None:
