@@ -28,8 +28,9 @@ test: lint
 	$(BIN)/python -m heli_sitl.warmup
 	$(BIN)/pytest -q
 
+# prints the table and writes it into README.md's performance section (nothing copied by hand)
 bench: $(STAMP)
-	$(BIN)/python -m benchmarks
+	$(BIN)/python -m benchmarks --readme README.md
 
 clean:
 	rm -rf $(VENV) out .pytest_cache .mypy_cache .ruff_cache

@@ -7,10 +7,15 @@ Exit status 0 always (the table is a report; the ``ok`` column flags a missed ta
 from __future__ import annotations
 
 import argparse
+import datetime
 import importlib
 import math
+import os
+import platform
+import re
 import sys
 import time
+from pathlib import Path
 
 from benchmarks import MODULES, REGISTRY, Row
 
@@ -50,6 +55,39 @@ def table(groups: list[tuple[str, list[Row]]]) -> str:
     return "\n".join([render(header), sep, *(render(line) for line in lines)])
 
 
+README_BEGIN = "<!-- make bench: begin -->"
+README_END = "<!-- make bench: end -->"
+
+
+def machine() -> str:
+    """One line naming the machine the figures come from."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return (f"{platform.system()} {platform.machine()}, {os.cpu_count()} CPUs ({cpu}), "
+            f"Python {platform.python_version()}")  # fmt: skip
+
+
+def readme_section(body: str) -> str:
+    """The README's performance table as this run printed it, between the markers."""
+    today = datetime.date.today().isoformat()
+    return (f"{README_BEGIN}\nAs `make bench` printed it on {today}, on {machine()}. Every floor\n"
+            f"is measured in the same run as the figure divided by it.\n\n{body}\n{README_END}")  # fmt: skip
+
+
+def write_readme(path: Path, body: str) -> None:
+    text = path.read_text()
+    pattern = re.compile(re.escape(README_BEGIN) + ".*?" + re.escape(README_END), re.DOTALL)
+    if not pattern.search(text):
+        raise ValueError(f"{path}: no {README_BEGIN} ... {README_END} section to replace")
+    path.write_text(pattern.sub(lambda _: readme_section(body), text, count=1))
+
+
 def parse(argv: list[str]) -> argparse.Namespace:
     p = argparse.ArgumentParser(
         prog="python -m benchmarks",
@@ -58,6 +96,9 @@ def parse(argv: list[str]) -> argparse.Namespace:
     )  # fmt: skip
     p.add_argument("groups", nargs="*", metavar="GROUP",
                    help="run only the groups whose title contains one of these words (default: all)")
+    p.add_argument("--readme", type=Path, metavar="FILE",
+                   help="also put the table into FILE between the markers "
+                        f"'{README_BEGIN}' and '{README_END}' (every group must run)")
     return p.parse_args(argv)
 
 
@@ -72,6 +113,13 @@ def main(argv: list[str]) -> int:
         print(f"python -m benchmarks: no group matches {', '.join(unknown)}; groups: {', '.join(known)}",
               file=sys.stderr)  # fmt: skip
         return 2
+    if args.readme is not None and wanted:
+        print("python -m benchmarks: --readme needs every group (a partial table would drop rows)",
+              file=sys.stderr)  # fmt: skip
+        return 2
+    if args.readme is not None and README_BEGIN not in args.readme.read_text():
+        print(f"python -m benchmarks: {args.readme} has no '{README_BEGIN}' section", file=sys.stderr)
+        return 2
     groups: list[tuple[str, list[Row]]] = []
     t0 = time.perf_counter()
     for title, fn in REGISTRY:
@@ -83,8 +131,12 @@ def main(argv: list[str]) -> int:
         except Exception as exc:  # one broken group must not hide the others' figures
             groups.append((title, [Row(f"FAILED: {type(exc).__name__}: {exc}"[:90], math.nan, "")]))
         print(f"  {title}: {time.perf_counter() - t1:.1f} s", file=sys.stderr, flush=True)
-    print(table(groups))
-    print(f"\n(total {time.perf_counter() - t0:.1f} s, including numba load/compile)")
+    body = table(groups)
+    print(body)
+    print(f"\n(total {time.perf_counter() - t0:.1f} s, including numba load/compile; {machine()})")
+    if args.readme is not None:
+        write_readme(args.readme, body)
+        print(f"wrote the table into {args.readme}")
     return 0
 
 

@@ -101,7 +101,7 @@ def fly_over_can(
                 plant.step(dt)
         wall = time.perf_counter() - wall0
         sender_stats, endpoint_stats = dict(sender.stats), dict(endpoint.stats)
-    commanded = recorder.buf[: recorder.n, 22 : 22 + N_PITCH].copy()
+    commanded = recorder.rows_array()[:, 22 : 22 + N_PITCH].copy()
     record = recorder.record(wall, {
         "rate_hz": rate_hz,
         "scenario": run.name,

@@ -8,6 +8,7 @@ launcher's exit status says when one of its children failed.
 
 from __future__ import annotations
 
+import importlib
 import json
 import signal
 import subprocess
@@ -130,3 +131,48 @@ def test_the_benchmark_runner_answers_help_and_unknown_groups() -> None:
                              capture_output=True, text=True, timeout=120)  # fmt: skip
     assert unknown.returncode == 2 and "no group matches nosuchgroup" in unknown.stderr
     assert "Traceback" not in unknown.stderr
+
+
+def test_the_readme_performance_table_is_the_benchmarks_own(tmp_path: Path) -> None:
+    """The README's table is written by `make bench` between its markers: the markers are
+    there, every group in the table is a registered benchmark, and the writer replaces the
+    section whole (nothing else in the file moves)."""
+    root = Path(__file__).resolve().parent.parent
+    sys.path.insert(0, str(root))
+    from benchmarks import MODULES, REGISTRY
+    from benchmarks.__main__ import README_BEGIN, README_END, write_readme
+
+    for mod in MODULES:
+        importlib.import_module(mod)
+    readme = (root / "README.md").read_text()
+    assert readme.count(README_BEGIN) == 1 and readme.count(README_END) == 1
+    section = readme.split(README_BEGIN, 1)[1].split(README_END, 1)[0]
+    titles = {t for t, _ in REGISTRY}
+    groups = {line.split("|")[1].strip() for line in section.splitlines() if line.startswith("| ")}
+    assert groups - {"group"} <= titles, groups - titles - {"group"}
+    copy = tmp_path / "README.md"
+    copy.write_text("# x\nbefore\n" + README_BEGIN + "\nold\n" + README_END + "\nafter\n")
+    write_readme(copy, "| group | benchmark |\n| plant | step |")
+    text = copy.read_text()
+    assert text.startswith("# x\nbefore\n" + README_BEGIN) and text.endswith(README_END + "\nafter\n")
+    assert "old" not in text and "| plant | step |" in text and "make bench" in text
+    copy.write_text("no markers\n")
+    with pytest.raises(ValueError, match="no <!-- make bench: begin -->"):
+        write_readme(copy, "x")
+
+
+@pytest.mark.parametrize("n", [0, 1, 6, 7, 8, 21, 30])
+def test_the_recorder_keeps_every_row_across_its_blocks(n: int) -> None:
+    from autopilot.runner import Recorder
+
+    r = Recorder(capacity=7)
+    for k in range(n):
+        x, ref = np.full(12, float(k)), np.full(9, -1.0 * k)
+        r.add(k * 0.01, x, ref, np.full(4, k / 2), np.zeros(7), k, k % 2 == 0)
+    for start in range(n + 2):
+        rows = r.rows_array(start)
+        assert rows.shape == (max(0, n - start), Recorder.WIDTH)
+        assert np.array_equal(rows[:, 0], np.arange(start, n) * 0.01)
+        assert np.array_equal(rows[:, 1], np.arange(start, n, dtype=float))
+    rec = r.record(0.0, {})
+    assert rec.t_s.size == n and np.array_equal(rec.traj_t_s, np.arange(n, dtype=float))

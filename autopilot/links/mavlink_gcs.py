@@ -11,6 +11,7 @@ standard modes microservice, DO_SET_MODE, DO_SET_STANDARD_MODE and SET_MODE).
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 from collections.abc import Callable
@@ -207,6 +208,18 @@ class GcsService:
         return out
 
     # -- the runner's hooks ----------------------------------------------------------------
+    def warm_up(self, x: FloatArray) -> None:
+        """Build each telemetry message once from ``x``, sending nothing (see TickService)."""
+        saved = self._x
+        self._x = x
+        try:
+            for msg_id in list(self.intervals_s):
+                with contextlib.suppress(Exception):  # telemetry reports its own faults later
+                    self.build(msg_id)
+            telemetry.attitude_target(0, (0.0, 0.0, 0.0))  # built only once armed
+        finally:
+            self._x = saved
+
     def between_ticks(self, t_s: float, x: FloatArray) -> None:
         """Input, between two ticks: commands, parameters, missions, setpoints (what
         changes the vehicle is queued for the next tick's start)."""

@@ -283,6 +283,15 @@ class TLController:
         tlc_kernel(self.constants, self.state, x, ref, hold_integrators, self._out, self.diag)
         return self._out.copy()
 
+    def warm_up(self, x: FloatArray) -> None:
+        """Run the kernel once on throwaway copies (a hold at ``x``): numba loads compiled
+        code on a function's first call, tens of milliseconds that a real-time loop's first
+        tick must not pay. Nothing of this controller changes."""
+        ref = np.zeros(N_REF)
+        ref[0:3] = x[0:3]
+        state, out, diag = self.state.copy(), self._out.copy(), self.diag.copy()
+        tlc_kernel(self.constants, state, x, ref, False, out, diag)
+
     @property
     def status(self) -> int:
         return int(self.diag[D_STATUS])
