@@ -79,7 +79,7 @@ def bench_can(n_ticks: int = 3000, closed_loop: bool = True) -> list[Row]:
     rows: list[Row] = [
         ("can_encode_send_us_per_tick", float(send_us.mean()), "us", "< 1000 (10 % of 10 ms)"),
         ("can_encode_send_p99_us", float(np.percentile(send_us, 99)), "us", "< 2000"),
-        ("can_encode_only_us_per_tick", encode_us, "us", "info (dronecan DSDL + framing)"),
+        ("can_encode_only_us_per_tick", encode_us, "us", "info (struct packing + framing)"),
         ("can_poll_decode_us_per_tick", float(poll_us.mean()), "us", "< 1000"),
         ("can_float16_max_error_rad", f16_err, "rad", "<= 2.5e-4 (half a float16 step at 0.5 rad)"),
     ]  # fmt: skip
