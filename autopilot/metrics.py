@@ -36,6 +36,10 @@ class FlightRecord:
     # taking off, returning or landing); None: the whole record is the trajectory
     traj_t_s: FloatArray | None = None
     landing: FloatArray | None = None  # (N,) bool: ticks of a landing
+    # the world, where one was simulated: the air velocity (earth NWU, m/s) and the blade
+    # pitches the servos reached (rad), at the end of each tick's hold
+    air_nwu_m_s: FloatArray | None = None
+    servo_rad: FloatArray | None = None
 
     @classmethod
     def from_ticks(

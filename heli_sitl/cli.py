@@ -15,6 +15,11 @@ from heli_common import cli_args as arg
 from heli_common.defaults import Exit, ports
 from heli_common.process import UsageError, run_main
 from heli_common.servo_link import add_servo_args
+from heli_common.world import World
+
+WORLD_HELP = ("the world around the vehicle: a TOML file or a preset of configs/world/ (calm, breezy, "
+              "gusty, servos-default, sloppy-servos, heavy-10pct, everything); default: the paper's "
+              "ideal world (no air, ideal servos, the design airframe)")
 
 PORTS = ports()
 
@@ -34,6 +39,7 @@ def _simulate(args: argparse.Namespace) -> int:
         feedforward=args.feedforward,
         plant_substeps=args.plant_substeps,
         duration_s=args.duration_s,
+        world=World.load(args.world) if args.world else None,
     )
     with tqdm(
         total=100, desc=f"simulate {scenario.run.name}", unit="%", disable=args.quiet,
@@ -85,7 +91,8 @@ def _run(args: argparse.Namespace) -> int:
     airframe, x0, rate = load_vehicle(args.scenario, on_ground=args.on_ground)
     cfg = SimConfig(args.mode, args.rate_hz or rate, args.duration_s, args.timeout_s,
                     hold_until_armed=args.hold_until_armed)  # fmt: skip
-    plant = Plant(airframe, x0, substeps=args.plant_substeps)
+    world = World.load(args.world) if args.world else None
+    plant = Plant(airframe, x0, substeps=args.plant_substeps, world=world)
     try:
         # the plant is component 51 of the vehicle; it takes commands from system 1 only
         link = MavlinkUdp((LOOPBACK, args.port), (LOOPBACK, args.autopilot_port), system_id=1,
@@ -127,7 +134,7 @@ def _up(args: argparse.Namespace) -> int:
         mode=args.mode, rate_hz=args.rate_hz, scenario=args.scenario, in_air=args.in_air,
         gcs_port=args.gcs_port, api_port=args.api_port, local_gcs_port=args.local_gcs_port,
         local_api_port=args.local_api_port, signing_key=args.signing_key, out=args.out,
-        sysid=args.sysid,
+        sysid=args.sysid, world=args.world,
     )  # fmt: skip
     try:
         serve(opts)
@@ -147,7 +154,7 @@ def _demo(args: argparse.Namespace) -> int:
     out = Path(args.out)
     opts = DemoOptions(mode=args.mode, rate_hz=args.rate_hz, scenario=args.scenario, out=out,
                        duration_s=args.duration_s, servo_link=args.servo_link,
-                       can_bus=args.can_bus, via_ground=not args.autostart)  # fmt: skip
+                       can_bus=args.can_bus, via_ground=not args.autostart, world=args.world)  # fmt: skip
     try:
         summary = run_demo(opts)
     except DemoError as exc:
@@ -182,6 +189,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--duration-s", type=arg.positive, default=None)
     s.add_argument("--out", required=True, help="output directory")
     s.add_argument("--quiet", action="store_true", help="no progress bar")
+    s.add_argument("--world", default=None, metavar="FILE|PRESET", help=WORLD_HELP)
     s.set_defaults(func=_simulate)
 
     r = sub.add_parser("run", help="the plant process (sim link on UDP loopback)")
@@ -201,6 +209,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_servo_args(r)
     r.add_argument("--hold-until-armed", action="store_true",
                    help="in-air start: do not step until the autopilot arms")
+    r.add_argument("--world", default=None, metavar="FILE|PRESET", help=WORLD_HELP)
     r.add_argument("-v", "--verbose", action="store_true")
     r.set_defaults(func=_run)
 
@@ -221,6 +230,7 @@ def build_parser() -> argparse.ArgumentParser:
     arg.add_instance_args(u)
     u.add_argument("--signing-key", default=None)
     u.add_argument("--out", default=None, help="autopilot writes run.csv/summary/tlog here on exit")
+    u.add_argument("--world", default=None, metavar="FILE|PRESET", help=WORLD_HELP)
     u.set_defaults(func=_up)
 
     d = sub.add_parser("demo", help="plant + autopilot as processes, fly the scenario")
@@ -233,6 +243,7 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--servo-link", choices=("mavlink", "can"), default=None)
     d.add_argument("--can-bus", default=None, help="python-can bus spec for --servo-link can")
     d.add_argument("--out", required=True)
+    d.add_argument("--world", default=None, metavar="FILE|PRESET", help=WORLD_HELP)
     d.set_defaults(func=_demo)
     return p
 

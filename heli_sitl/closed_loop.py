@@ -10,9 +10,11 @@ the references for every tick are sampled up front.
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -27,7 +29,9 @@ from autopilot.tlc.controller import (
 from heli_common.airframe import PlantConstants
 from heli_common.jit import njit
 from heli_common.state import N_PITCH, FloatArray
+from heli_common.world import World
 from heli_sitl.plant.model import Plant, accept_pitches, plant_step
+from heli_sitl.plant.world.model import N_WP, N_WS, WS_AIR, WS_PITCH, AirConstants, world_plant_step
 
 Progress = Callable[[int, int], None]
 CHUNK_TICKS = 500  # progress granularity; each chunk is one compiled call
@@ -39,6 +43,7 @@ class SimOptions:
     feedforward: str | None = None
     plant_substeps: int | None = None
     duration_s: float | None = None
+    world: World | None = None  # None: the paper's ideal world
 
 
 @njit
@@ -59,6 +64,15 @@ def _run_ticks(
     xs: FloatArray,
     us: FloatArray,
     diags: FloatArray,
+    in_world: bool,
+    air: AirConstants,
+    wp: FloatArray,
+    ws: FloatArray,
+    servo_p: FloatArray,
+    servo_s: FloatArray,
+    dryden: FloatArray,
+    airs: FloatArray,
+    applied: FloatArray,
 ) -> FloatArray:
     x = x0.copy()
     out = np.empty(N_PITCH)
@@ -71,7 +85,14 @@ def _run_ticks(
         diags[i] = diag
         if i < n_last:
             accept_pitches(out, lo, hi, held)
-            x, _ = plant_step(t[i], x, held, c, dt, n_sub, True)
+            if in_world:
+                x, _ = world_plant_step(
+                    t[i], x, held, c, air, dt, n_sub, True, wp, ws, servo_p, servo_s, dryden
+                )
+                airs[i] = ws[WS_AIR : WS_AIR + 3]
+                applied[i] = ws[WS_PITCH : WS_PITCH + N_PITCH]
+            else:
+                x, _ = plant_step(t[i], x, held, c, dt, n_sub, True)
     return x
 
 
@@ -88,6 +109,7 @@ def simulate(
         scenario.airframe,
         scenario.initial.state().to_array(),
         substeps=opts.plant_substeps or run.plant_substeps,
+        world=opts.world,
     )
     n = round(duration * rate_hz)
     t = np.arange(n + 1) / rate_hz
@@ -95,22 +117,58 @@ def simulate(
     xs = np.empty((n + 1, plant.x.size))
     us = np.empty((n + 1, N_PITCH))
     diags = np.empty((n + 1, N_DIAG))
+    airs = np.zeros((n + 1, 3))
+    applied = np.empty((n + 1, N_PITCH))
     x = plant.x
+    w = plant.world or CALM_ARRAYS
+    if plant.world is not None:
+        # the servos start where the first command puts them, as in the plant process
+        first = copy.deepcopy(ctrl).update(0.0, x, refs[0])
+        u0 = plant.u.copy()
+        accept_pitches(first, plant.lo, plant.hi, u0)
+        plant.world.prepare(1.0 / rate_hz / plant.substeps, u0, np.column_stack([plant.lo, plant.hi]))
+
+    def ticks(k0: int, k1: int, state: FloatArray, held: FloatArray, ws: FloatArray, servo_s: FloatArray,
+              x: FloatArray) -> FloatArray:  # fmt: skip
+        return _run_ticks(
+            ctrl.constants, state, plant.constants, plant.lo, plant.hi, held, x, refs, t, k0, k1, n,
+            plant.substeps, xs, us, diags, plant.world is not None, w.air, w.wp, ws, w.servo_p,
+            servo_s, w.dryden, airs, applied,
+        )  # fmt: skip
+
     # load (or compile) the kernels outside the timed flight, on throwaway copies
-    _run_ticks(
-        ctrl.constants, ctrl.state.copy(), plant.constants, plant.lo, plant.hi, plant.u.copy(),
-        x, refs, t, 0, 1, n, plant.substeps, xs, us, diags,
-    )  # fmt: skip
+    ticks(0, 1, ctrl.state.copy(), plant.u.copy(), w.ws.copy(), w.servo_s.copy(), x)
     wall0 = time.perf_counter()
     for k0 in range(0, n + 1, CHUNK_TICKS):
         k1 = min(n + 1, k0 + CHUNK_TICKS)
-        x = _run_ticks(
-            ctrl.constants, ctrl.state, plant.constants, plant.lo, plant.hi, plant.u,
-            x, refs, t, k0, k1, n, plant.substeps, xs, us, diags,
-        )  # fmt: skip
+        x = ticks(k0, k1, ctrl.state, plant.u, w.ws, w.servo_s, x)
         if progress is not None:
             progress(k1 - 1, n)
     wall = time.perf_counter() - wall0
-    extra = {"scenario": run.name, "rate_hz": rate_hz, "feedforward": ctrl.feedforward.value,
-             "plant_substeps": plant.substeps}  # fmt: skip
-    return FlightRecord.from_ticks(t, xs, refs, us, diags, wall, extra)
+    extra: dict[str, object] = {
+        "scenario": run.name, "rate_hz": rate_hz, "feedforward": ctrl.feedforward.value,
+        "plant_substeps": plant.substeps,
+    }  # fmt: skip
+    if plant.world is not None:
+        extra["world"] = plant.world.describe(scenario.airframe)
+    rec = FlightRecord.from_ticks(t, xs, refs, us, diags, wall, extra)
+    if plant.world is not None:
+        applied[n] = applied[n - 1] if n > 0 else plant.u
+        airs[n] = airs[n - 1] if n > 0 else 0.0
+        rec = dataclasses.replace(rec, air_nwu_m_s=airs, servo_rad=applied)
+    return rec
+
+
+@dataclass(frozen=True)
+class _Calm:
+    """Placeholder world arrays for the compiled loop when the world is off (never read)."""
+
+    air: AirConstants = AirConstants(False, False, 1.0, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0)
+    wp: FloatArray = field(default_factory=lambda: np.zeros(N_WP))
+    ws: FloatArray = field(default_factory=lambda: np.zeros(N_WS))
+    servo_p: FloatArray = field(default_factory=lambda: np.zeros((N_PITCH, 1)))
+    servo_s: FloatArray = field(default_factory=lambda: np.zeros(1))
+    dryden: FloatArray = field(default_factory=lambda: np.zeros(1))
+
+
+CALM_ARRAYS = _Calm()

@@ -15,6 +15,7 @@ from pathlib import Path
 
 from heli_common.defaults import ports
 from heli_common.mavlink.udp import free_udp_port
+from heli_common.world import World
 from heli_sitl.children import Child, describe_exit, spawn, stop_all
 
 PORTS = ports()
@@ -39,6 +40,7 @@ class DemoOptions:
     via_ground: bool = True
     servo_link: str | None = None  # None: configs/links.toml
     can_bus: str | None = None
+    world: str | None = None  # a world file or preset name (the plant's)
     extra_plant_args: tuple[str, ...] = ()
     extra_autopilot_args: tuple[str, ...] = ()
 
@@ -60,6 +62,8 @@ def run_demo(opts: DemoOptions) -> dict[str, object]:
         common += ["--duration-s", str(opts.duration_s)]
     plant_cmd = _cmd("heli_sitl.cli") + ["run", *common, "--port", str(pp),
                                          "--autopilot-port", str(ap), *opts.extra_plant_args]
+    if opts.world:
+        plant_cmd += ["--world", opts.world]
     ground_cmd: list[str] | None = None
     gcs_port = free_udp_port()
     if opts.via_ground:
@@ -111,6 +115,9 @@ def run_demo(opts: DemoOptions) -> dict[str, object]:
     if not summary_path.is_file():
         raise DemoError("autopilot wrote no summary.json")
     summary: dict[str, object] = json.loads(summary_path.read_text())
+    if opts.world:  # the world is the plant's: the autopilot's summary does not know it
+        summary["world"] = World.load(opts.world).describe()
+        summary_path.write_text(json.dumps(summary, indent=2) + "\n")
     return summary
 
 
@@ -129,6 +136,7 @@ class UpOptions:
     plant_port: int = 0
     autopilot_port: int = 0
     sysid: int = 1
+    world: str | None = None
 
 
 def up_commands(opts: UpOptions) -> list[tuple[str, list[str]]]:
@@ -139,7 +147,9 @@ def up_commands(opts: UpOptions) -> list[tuple[str, list[str]]]:
     plant = _cmd("heli_sitl.cli") + [
         "run", "--mode", opts.mode, "--rate-hz", str(plant_rate), "--scenario", opts.scenario,
         "--port", str(pp), "--autopilot-port", str(ap), "--timeout-s", "2",
-    ] + (["--hold-until-armed"] if opts.in_air else ["--on-ground"])  # fmt: skip
+    ] + (["--hold-until-armed"] if opts.in_air else ["--on-ground"]) + (
+        ["--world", opts.world] if opts.world else []
+    )  # fmt: skip
     autopilot = _cmd("autopilot.cli") + [
         "--mode", opts.mode, "--rate-hz", str(opts.rate_hz), "--scenario", opts.scenario,
         "--port", str(ap), "--plant-port", str(pp),

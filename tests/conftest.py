@@ -18,7 +18,7 @@ from autopilot.tlc.controller import N_DIAG, TLCConstants, TLController
 from autopilot.tlc.gains import Gains
 from heli_common.airframe import Airframe, PlantConstants
 from heli_common.state import N_PITCH, N_STATE, PSI, Z_U, FloatArray
-from heli_sitl.closed_loop import _run_ticks
+from heli_sitl.closed_loop import CALM_ARRAYS, _run_ticks
 from heli_sitl.plant.model import Plant
 
 # The first call of a compiled function loads (or compiles) it: no per-example deadline.
@@ -75,9 +75,11 @@ def fly(
     us = np.empty((n + 1, N_PITCH))
     diags = np.empty((n + 1, N_DIAG))
     held = np.zeros(N_PITCH)
+    w = CALM_ARRAYS  # the paper's ideal world
     x_next = _run_ticks(
         k, ctrl_state, plant.constants, plant.lo, plant.hi, held, np.asarray(x0, dtype=float),
-        refs, t, 0, n + 1, n + 1, plant.substeps, xs, us, diags,
+        refs, t, 0, n + 1, n + 1, plant.substeps, xs, us, diags, False, w.air, w.wp, w.ws,
+        w.servo_p, w.servo_s, w.dryden, np.zeros((n + 1, 3)), np.zeros((n + 1, N_PITCH)),
     )  # fmt: skip
     return Flight(xs, us, diags, t, x_next)
 

@@ -53,6 +53,15 @@ def rotor_loads(theta_m: float, theta_t: float, c: PlantConstants) -> tuple[floa
 def forces_torques(x: FloatArray, u: FloatArray, c: PlantConstants) -> tuple[FloatArray, FloatArray]:
     """Body-frame force F [N] (gravity included) and torque Q [N m], eqs 12-13."""
     tm, qm, tt, qt = rotor_loads(u[THETA_M], u[THETA_T], c)
+    return forces_from_loads(x, u, c, tm, qm, tt, qt)
+
+
+@njit
+def forces_from_loads(
+    x: FloatArray, u: FloatArray, c: PlantConstants, tm: float, qm: float, tt: float, qt: float
+) -> tuple[FloatArray, FloatArray]:
+    """Eqs 12-13 for given rotor thrusts and torques (the hover maps', or the inflow
+    model's in a relative wind): body force with gravity, and torque."""
     eps, eta = u[EPS], u[ETA]
     seps, ceps, seta, ceta = math.sin(eps), math.cos(eps), math.sin(eta), math.cos(eta)
     d = math.sqrt(1.0 - seps * seps * seta * seta)

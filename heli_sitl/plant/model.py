@@ -7,8 +7,10 @@ import numpy as np
 from heli_common.airframe import Airframe, PlantConstants
 from heli_common.jit import njit
 from heli_common.state import N_PITCH, N_STATE, FloatArray
+from heli_common.world import World
 from heli_sitl.plant.contact import apply_ground_contact
 from heli_sitl.plant.integrate import rk4_step
+from heli_sitl.plant.world.model import WP_SERVOS_ON, WP_TURB_ON, WorldModel, world_plant_step
 
 
 @njit
@@ -38,6 +40,8 @@ class Plant:
 
     Pitches are clipped to the airframe's servo limits and a non-finite command is refused
     (the previous one is held), so nothing but a finite, in-range pitch reaches the model.
+    ``world`` (off: None or a calm one) adds servos, air, mismatch and disturbances; the
+    plant then flies the world's airframe, ``airframe`` being the controller's design.
     """
 
     def __init__(
@@ -47,14 +51,16 @@ class Plant:
         *,
         substeps: int = 1,
         ground_contact: bool = True,
+        world: World | None = None,
     ) -> None:
         if substeps < 1:
             raise ValueError("substeps must be >= 1")
-        self.airframe = airframe
-        self.constants = airframe.constants()
         self.x = np.array(x0, dtype=float)
         if self.x.shape != (N_STATE,) or not np.all(np.isfinite(self.x)):
             raise ValueError("initial state must be 12 finite numbers")
+        self.world = WorldModel.build(world, airframe, self.x) if world is not None and world.on else None
+        self.airframe = airframe if self.world is None else self.world.airframe
+        self.constants = self.airframe.constants()
         self.t_s = 0.0
         self.substeps = substeps
         self.ground_contact = ground_contact
@@ -63,6 +69,12 @@ class Plant:
         self.u = np.zeros(N_PITCH)
         self.rejected_commands = 0
         self.on_ground = False
+        if self.world is not None:  # load the compiled world step now, not on the first step
+            w = self.world
+            wp = w.wp.copy()
+            wp[WP_SERVOS_ON] = wp[WP_TURB_ON] = 0.0  # their arrays are built on the first step
+            world_plant_step(0.0, self.x, self.u, self.constants, w.air, 1e-3, 1, False, wp,
+                             w.ws.copy(), w.servo_p, w.servo_s.copy(), w.dryden)  # fmt: skip
 
     def set_pitches(self, u: FloatArray) -> bool:
         """Hold new pitches [rad]; False (and the old ones kept) if any is not finite."""
@@ -73,8 +85,16 @@ class Plant:
         return True
 
     def step(self, dt_s: float) -> FloatArray:
-        self.x, self.on_ground = plant_step(
-            self.t_s, self.x, self.u, self.constants, dt_s, self.substeps, self.ground_contact
-        )
+        w = self.world
+        if w is None:
+            self.x, self.on_ground = plant_step(
+                self.t_s, self.x, self.u, self.constants, dt_s, self.substeps, self.ground_contact
+            )
+        else:
+            w.prepare(dt_s / self.substeps, self.u, np.column_stack([self.lo, self.hi]))
+            self.x, self.on_ground = world_plant_step(
+                self.t_s, self.x, self.u, self.constants, w.air, dt_s, self.substeps, self.ground_contact,
+                w.wp, w.ws, w.servo_p, w.servo_s, w.dryden,
+            )  # fmt: skip
         self.t_s += dt_s
         return self.x

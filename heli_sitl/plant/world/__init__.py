@@ -1,0 +1,1 @@
+"""The world around the vehicle: air, wind, servos (compiled)."""

@@ -1,0 +1,323 @@
+"""The world in the plant's step: servos, wind, air loads and disturbances, compiled.
+
+:class:`WorldModel` turns a configured :class:`heli_common.world.World` into flat arrays
+(named offsets below) and :func:`world_plant_step` advances the vehicle through one hold
+interval with them, sub-step by sub-step (step ``h = dt / n_sub``):
+
+1. the servos (delay, quantum, dead band, rate limit, lag, limits) move toward the held
+   command by one step of ``h``: the blade pitches the rotors see;
+2. the air velocity ``W`` (earth NWU) is evaluated at the sub-step's start: steady wind,
+   the 1-cosine gust, and the Dryden filters advanced by one step with noise drawn from
+   ``(seed, stream, step counter)``, so the same seed gives the same air in any process;
+3. one RK4 step of the rigid body with ``W``, the pitches and the disturbance held, the
+   loads in :func:`derivative_in_air` (the paper's loads where the air is off).
+
+Counter-based noise and a step counter in the state make the world a pure function of
+(seed, step sequence): in-process and lockstep processes step the same way and fly the
+same flight. With the world off, the plant does not call any of this.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from heli_common.airframe import Airframe, PlantConstants
+from heli_common.jit import njit
+from heli_common.kinematics import rot_body_to_earth
+from heli_common.state import N_PITCH, P_X, PHI, PSI, Q_Y, R_Z, THETA, U_F, V_L, W_U, FloatArray
+from heli_common.world import World
+from heli_sitl.plant.contact import apply_ground_contact
+from heli_sitl.plant.dynamics import forces_from_loads, rigid_body, rotor_loads
+from heli_sitl.plant.world import air, servos, wind
+
+
+class AirConstants(NamedTuple):
+    """The air loads' switches and constants, flat for the compiled step."""
+
+    fuselage: bool
+    inflow: bool
+    rho: float
+    s_x: float
+    s_y: float
+    s_z: float
+    tip_speed_main: float  # Omega R [m/s]
+    tip_speed_tail: float
+    wake_factor: float
+
+
+# world parameters (float64 array), set by WorldModel, read by the compiled step
+WP_WIND = 0  # 3: steady wind, earth NWU [m/s]
+WP_GUST = 3  # 3: gust at full amplitude, earth NWU [m/s]
+WP_GUST_START = 6
+WP_GUST_RISE = 7
+WP_GUST_HOLD = 8  # inf: holds for ever
+WP_GUST_FALL = 9
+WP_TURB_ON = 10
+WP_TURB_PSI_FROM = 11  # mean-wind heading the turbulence axes follow [rad]
+WP_TURB_CALM = 12  # 1: no mean wind, the axes are north/west/up
+WP_SEED = 13
+WP_DIST_FORCE = 14  # 3
+WP_DIST_TORQUE = 17  # 3
+WP_DIST_BODY = 20  # 1: body frame, 0: earth frame
+WP_DIST_KIND = 21  # 0 constant, 1 step, 2 sine
+WP_DIST_START = 22
+WP_DIST_FREQ = 23
+WP_SERVOS_ON = 24
+N_WP = 25
+DIST_KINDS = {"constant": 0.0, "step": 1.0, "sine": 2.0}
+
+# world state (float64 array), advanced by the compiled step
+WS_STEP = 0  # sub-steps taken (the noise counter)
+WS_LAM_MAIN = 1  # last inflow ratios: the next solve starts there
+WS_LAM_TAIL = 2
+WS_AIR = 3  # 3: the air velocity of the last sub-step, earth NWU [m/s]
+WS_PITCH = 6  # 4: the blade pitches of the last sub-step [rad]
+WS_TURB = 10  # wind.N_DRYDEN_STATE
+N_WS = WS_TURB + wind.N_DRYDEN_STATE
+
+
+@njit
+def air_relative_flu(x: FloatArray, rt: FloatArray, w_nwu: FloatArray) -> tuple[float, float, float]:
+    """The c.g.'s velocity relative to the air, body FLU: V - R^T W."""
+    return (
+        x[U_F] - (rt[0, 0] * w_nwu[0] + rt[1, 0] * w_nwu[1] + rt[2, 0] * w_nwu[2]),
+        x[V_L] - (rt[0, 1] * w_nwu[0] + rt[1, 1] * w_nwu[1] + rt[2, 1] * w_nwu[2]),
+        x[W_U] - (rt[0, 2] * w_nwu[0] + rt[1, 2] * w_nwu[1] + rt[2, 2] * w_nwu[2]),
+    )
+
+
+@njit
+def air_velocity_nwu(
+    t: float, wp: FloatArray, ws: FloatArray, dryden: FloatArray
+) -> tuple[float, float, float]:
+    """W at ``t``: steady wind + gust + turbulence (advancing the Dryden filters one step)."""
+    g = wind.gust_factor(t, wp[WP_GUST_START], wp[WP_GUST_RISE], wp[WP_GUST_HOLD], wp[WP_GUST_FALL])
+    wx = wp[WP_WIND] + g * wp[WP_GUST]
+    wy = wp[WP_WIND + 1] + g * wp[WP_GUST + 1]
+    wz = wp[WP_WIND + 2] + g * wp[WP_GUST + 2]
+    if wp[WP_TURB_ON] != 0.0:
+        turb = ws[WS_TURB : WS_TURB + wind.N_DRYDEN_STATE]
+        wind.dryden_step(dryden, turb, int(wp[WP_SEED]), int(ws[WS_STEP]))
+        ug, vg, wg = wind.dryden_output(dryden, turb)
+        tx, ty, tz = wind.turbulence_nwu(ug, vg, wg, wp[WP_TURB_PSI_FROM], wp[WP_TURB_CALM] != 0.0)
+        wx, wy, wz = wx + tx, wy + ty, wz + tz
+    return wx, wy, wz
+
+
+@njit
+def disturbance_scale(t: float, wp: FloatArray) -> float:
+    kind, t0 = wp[WP_DIST_KIND], wp[WP_DIST_START]
+    if kind == 0.0:
+        return 1.0
+    if t < t0:
+        return 0.0
+    if kind == 1.0:
+        return 1.0
+    return math.sin(2.0 * math.pi * wp[WP_DIST_FREQ] * (t - t0))
+
+
+@njit
+def derivative_in_air(
+    t: float, x: FloatArray, u: FloatArray, c: PlantConstants, a: AirConstants,
+    w_nwu: FloatArray, wp: FloatArray, ws: FloatArray,
+) -> FloatArray:  # fmt: skip
+    """dx/dt with the air ``w_nwu`` held: rotor loads with inflow (or the hover maps),
+    fuselage drag on the air-relative velocity, and the injected disturbance."""
+    rt = rot_body_to_earth(x[PHI], x[THETA], x[PSI])
+    u_a, v_a, w_a = air_relative_flu(x, rt, w_nwu)
+    if a.inflow:
+        tm, qm, tt, qt, lam_m, _ = air.rotor_loads_in_air(
+            u[0], u[1], u_a, v_a, w_a, x[P_X], x[Q_Y], x[R_Z], c, a.tip_speed_main,
+            a.tip_speed_tail, a.wake_factor, ws[WS_LAM_MAIN], ws[WS_LAM_TAIL],
+        )  # fmt: skip
+        v_i = lam_m * a.tip_speed_main
+    else:
+        tm, qm, tt, qt = rotor_loads(u[0], u[1], c)
+        v_i = 0.0
+    f, q = forces_from_loads(x, u, c, tm, qm, tt, qt)
+    if a.fuselage:
+        fx, fy, fz = air.fuselage_force_flu(u_a, v_a, w_a, v_i, a.s_x, a.s_y, a.s_z, a.rho)
+        f[0] += fx
+        f[1] += fy
+        f[2] += fz
+    s = disturbance_scale(t, wp)
+    if s != 0.0:
+        df, dq = wp[WP_DIST_FORCE : WP_DIST_FORCE + 3], wp[WP_DIST_TORQUE : WP_DIST_TORQUE + 3]
+        if wp[WP_DIST_BODY] != 0.0:
+            for i in range(3):
+                f[i] += s * df[i]
+                q[i] += s * dq[i]
+        else:  # earth -> body: R^T
+            for i in range(3):
+                f[i] += s * (rt[0, i] * df[0] + rt[1, i] * df[1] + rt[2, i] * df[2])
+                q[i] += s * (rt[0, i] * dq[0] + rt[1, i] * dq[1] + rt[2, i] * dq[2])
+    return rigid_body(x, f, q, c)
+
+
+@njit
+def world_plant_step(
+    t: float, x: FloatArray, u_cmd: FloatArray, c: PlantConstants, a: AirConstants, dt: float,
+    n_sub: int, contact: bool, wp: FloatArray, ws: FloatArray, servo_p: FloatArray,
+    servo_s: FloatArray, dryden: FloatArray,
+) -> tuple[FloatArray, bool]:  # fmt: skip
+    """:func:`heli_sitl.plant.model.plant_step` in the world: RK4 over one hold interval of
+    the command ``u_cmd`` in ``n_sub`` sub-steps, servos, air and disturbance advanced per
+    sub-step (the air and pitches held within one), then ground contact."""
+    h = dt / n_sub
+    y = x.copy()
+    u = u_cmd.copy()
+    w_nwu = np.zeros(3)
+    for k in range(n_sub):
+        tk = t + k * h
+        if wp[WP_SERVOS_ON] != 0.0:
+            servos.servo_step(servo_p, servo_s, u_cmd, u)
+        w_nwu[0], w_nwu[1], w_nwu[2] = air_velocity_nwu(tk, wp, ws, dryden)
+        k1 = derivative_in_air(tk, y, u, c, a, w_nwu, wp, ws)
+        k2 = derivative_in_air(tk + 0.5 * h, y + 0.5 * h * k1, u, c, a, w_nwu, wp, ws)
+        k3 = derivative_in_air(tk + 0.5 * h, y + 0.5 * h * k2, u, c, a, w_nwu, wp, ws)
+        k4 = derivative_in_air(tk + h, y + h * k3, u, c, a, w_nwu, wp, ws)
+        y = y + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+        if a.inflow:  # the next solve starts from this step's inflow
+            _, _, _, _, lam_m, lam_t = _inflow_now(y, u, c, a, w_nwu, ws)
+            ws[WS_LAM_MAIN], ws[WS_LAM_TAIL] = lam_m, lam_t
+        ws[WS_STEP] += 1.0
+    ws[WS_AIR : WS_AIR + 3] = w_nwu
+    ws[WS_PITCH : WS_PITCH + N_PITCH] = u
+    on_ground = apply_ground_contact(y, x) if contact else False
+    return y, on_ground
+
+
+@njit
+def _inflow_now(
+    x: FloatArray, u: FloatArray, c: PlantConstants, a: AirConstants, w_nwu: FloatArray, ws: FloatArray
+) -> tuple[float, float, float, float, float, float]:
+    rt = rot_body_to_earth(x[PHI], x[THETA], x[PSI])
+    u_a, v_a, w_a = air_relative_flu(x, rt, w_nwu)
+    return air.rotor_loads_in_air(
+        u[0], u[1], u_a, v_a, w_a, x[P_X], x[Q_Y], x[R_Z], c, a.tip_speed_main, a.tip_speed_tail,
+        a.wake_factor, ws[WS_LAM_MAIN], ws[WS_LAM_TAIL],
+    )  # fmt: skip
+
+
+def _unit_from(from_deg: float, elevation_deg: float) -> FloatArray:
+    """The direction air moves for a wind FROM ``from_deg`` at ``elevation_deg``, NWU."""
+    return np.asarray(wind.mean_wind_nwu(1.0, from_deg, elevation_deg), dtype=float)
+
+
+@dataclass
+class WorldModel:
+    """A configured world's arrays for one plant; ``step`` is :func:`world_plant_step`.
+
+    ``design`` is the controller's airframe; the plant flies ``airframe`` (the mismatched
+    one). Servo arrays are built for the sub-step of the first ``step`` call (and rebuilt,
+    positions kept, if a caller changes its step)."""
+
+    world: World
+    airframe: Airframe
+    constants: PlantConstants
+    air: AirConstants
+    wp: FloatArray
+    ws: FloatArray
+    dryden: FloatArray
+    servo_p: FloatArray
+    servo_s: FloatArray
+    x0: FloatArray
+    h_s: float = 0.0
+
+    @classmethod
+    def build(cls, world: World, design: Airframe, x0: FloatArray) -> WorldModel:
+        af = world.mismatch.apply(design, Path(world.source).parent if world.source else None)
+        c = af.constants()
+        ar = world.air
+        a = AirConstants(
+            fuselage=ar.fuselage, inflow=ar.rotor_inflow, rho=af.air.density_kg_m3,
+            s_x=ar.fuselage_areas_m2[0], s_y=ar.fuselage_areas_m2[1], s_z=ar.fuselage_areas_m2[2],
+            tip_speed_main=af.main_rotor.speed_rad_s * af.main_rotor.radius_m,
+            tip_speed_tail=af.tail_rotor.speed_rad_s * af.tail_rotor.radius_m,
+            wake_factor=ar.wake_factor,
+        )  # fmt: skip
+        wp = np.zeros(N_WP)
+        w = world.wind
+        wp[WP_WIND : WP_WIND + 3] = wind.mean_wind_nwu(w.speed_m_s, w.from_deg, w.elevation_deg)
+        g = world.gust
+        wp[WP_GUST : WP_GUST + 3] = g.amplitude_m_s * _unit_from(g.from_deg, g.elevation_deg)
+        wp[WP_GUST_START], wp[WP_GUST_RISE] = g.start_s, g.rise_s
+        wp[WP_GUST_HOLD] = math.inf if g.hold_s < 0.0 else g.hold_s
+        wp[WP_GUST_FALL] = g.fall_s
+        wp[WP_TURB_ON] = 1.0 if world.turbulence.w20_m_s > 0.0 else 0.0
+        wp[WP_TURB_PSI_FROM] = math.radians(w.from_deg)
+        wp[WP_TURB_CALM] = 1.0 if w.speed_m_s == 0.0 else 0.0
+        wp[WP_SEED] = float(world.seed)
+        d = world.disturbance
+        wp[WP_DIST_FORCE : WP_DIST_FORCE + 3] = d.force_n
+        wp[WP_DIST_TORQUE : WP_DIST_TORQUE + 3] = d.torque_n_m
+        wp[WP_DIST_BODY] = 1.0 if d.frame == "body" else 0.0
+        wp[WP_DIST_KIND] = DIST_KINDS[d.kind]
+        wp[WP_DIST_START], wp[WP_DIST_FREQ] = d.start_s, d.frequency_hz
+        wp[WP_SERVOS_ON] = 1.0 if world.servos.on else 0.0
+        ws = np.zeros(N_WS)
+        # the inflow solver's first guesses: about the hover inflow (it converges from anywhere)
+        ws[WS_LAM_MAIN] = ws[WS_LAM_TAIL] = 0.05
+        return cls(world, af, c, a, wp, ws, np.zeros(wind.N_DRYDEN_COEFFS), np.zeros((N_PITCH, 1)),
+                   np.zeros(1), np.asarray(x0, dtype=float))  # fmt: skip
+
+    def _dryden(self, h_s: float) -> None:
+        """Dryden coefficients for step ``h_s``: scale lengths and intensities at the
+        configured height (or the initial one), convected at max(|V - W_mean|, 1 m/s)."""
+        t = self.world.turbulence
+        if t.w20_m_s <= 0.0:
+            return
+        height = t.altitude_m if t.altitude_m > 0.0 else float(self.x0[2])
+        lu, lv, lw, su, sv, sw = wind.dryden_low_altitude(max(height, wind.H_MIN_M), t.w20_m_s)
+        rt = rot_body_to_earth(self.x0[PHI], self.x0[THETA], self.x0[PSI])
+        v_earth = rt @ self.x0[U_F : W_U + 1]
+        v_conv = max(float(np.linalg.norm(v_earth - self.wp[WP_WIND : WP_WIND + 3])), 1.0)
+        self.dryden = wind.dryden_coefficients(lu, lv, lw, su, sv, sw, v_conv, h_s)
+        if self.h_s == 0.0:  # the first build: a stationary start
+            turb = self.ws[WS_TURB : WS_TURB + wind.N_DRYDEN_STATE]
+            wind.dryden_init(self.dryden, turb, self.world.seed)
+
+    def _servos(self, h_s: float, u0: FloatArray, limits: FloatArray) -> None:
+        sv = self.world.servos
+        rate = [r if r > 0.0 else math.inf for r in sv.rate_rad_s]
+        self.servo_p = servos.servo_parameters(
+            sv.delay_s, rate, sv.tau_s, limits[:, 0].tolist(), limits[:, 1].tolist(), sv.quantum_rad,
+            sv.deadband_rad, h_s,
+        )
+        held = self.ws[WS_PITCH : WS_PITCH + N_PITCH] if self.h_s else np.clip(u0, limits[:, 0], limits[:, 1])
+        self.servo_s = servos.servo_state(self.servo_p, np.array(held))
+
+    def prepare(self, h_s: float, u0: FloatArray, limits: FloatArray) -> None:
+        """Arrays for sub-step ``h_s`` (the first call, or a changed step)."""
+        if h_s == self.h_s:
+            return
+        self._dryden(h_s)
+        if self.world.servos.on:
+            self._servos(h_s, u0, limits)
+        self.h_s = h_s
+
+    def describe(self, design: Airframe) -> dict[str, object]:
+        """The world for a summary; with a mismatch, the plant's constants beside the design's."""
+        out = self.world.describe()
+        if self.world.mismatch.on:
+            plant, ctrl = self.airframe.constants(), design.constants()
+            out["plant_vs_design"] = {
+                k: [getattr(plant, k), getattr(ctrl, k)]
+                for k in plant._fields
+                if getattr(plant, k) != getattr(ctrl, k)
+            }
+        return out
+
+    @property
+    def air_nwu_m_s(self) -> FloatArray:
+        return self.ws[WS_AIR : WS_AIR + 3].copy()
+
+    @property
+    def pitches_rad(self) -> FloatArray:
+        return self.ws[WS_PITCH : WS_PITCH + N_PITCH].copy()
+
