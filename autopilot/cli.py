@@ -20,8 +20,9 @@ from autopilot.flight_log import write_flight_tlog
 from autopilot.links.can_servo import CanServoOutput, CanServoSender
 from autopilot.links.mavlink_gcs import GcsConfig, GcsService
 from autopilot.links.mavlink_sim import SimLink
+from autopilot.links.world_sync import WorldSync
 from autopilot.params_table import ParamTable
-from autopilot.runner import Recorder, Runner, RunnerConfig
+from autopilot.runner import Recorder, Runner, RunnerConfig, TickService
 from autopilot.scenario import Scenario
 from autopilot.tlc.controller import TLController
 from heli_common import cli_args as arg
@@ -34,6 +35,7 @@ from heli_common.mavlink.wire import read_signing_key
 from heli_common.process import UsageError, run_main
 from heli_common.servo_link import add_servo_args, load_servo_link, with_overrides
 from heli_common.servo_map import limits_array
+from heli_common.world import World
 
 log = logging.getLogger("autopilot")
 PORTS = ports()
@@ -60,6 +62,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--can-node-id", type=arg.in_range(1, 127, int), default=None, help="DroneCAN node id")
     g = p.add_argument_group(f"GCS link (ground stations on {PORTS.gcs}, API clients on {PORTS.api})")
     g.add_argument("--no-gcs", action="store_true", help="no ground-station link")
+    g.add_argument("--world", default=None, metavar="FILE|PRESET",
+                   help="the world the plant flies (configs/world/ presets): its SIM_ parameters' "
+                        "starting values; give the plant the same --world")
     g.add_argument("--gcs-port", type=arg.port, default=None, help=f"default {PORTS.gcs} + 10 N")
     g.add_argument("--api-port", type=arg.port, default=None, help=f"default {PORTS.api} + 10 N")
     g.add_argument("--local-gcs-port", type=arg.bind_port, default=None,
@@ -117,7 +122,9 @@ def make_gcs(
         signing_key=read_signing_key(args.signing_key) if args.signing_key else None,
         system_id=args.sysid,
     )  # fmt: skip
-    table = ParamTable(sc.gains, sc.airframe.limits, ctrl.rate_hz, home=home, system_id=args.sysid)
+    world = World.load(args.world) if args.world else None
+    table = ParamTable(sc.gains, sc.airframe.limits, ctrl.rate_hz, home=home, system_id=args.sysid,
+                       world=world)  # fmt: skip
     return GcsService(cfg, table, lambda t: apply_params(ctrl, manager, t), limits, manager=manager)
 
 
@@ -155,7 +162,8 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
     try:
         with SimLink((LOOPBACK, args.port), (LOOPBACK, args.plant_port), limits) as sim:
             servo_out: ServoOutput = CanServoOutput(can) if can is not None else sim
-            runner = Runner(ctrl, manager, sim, servo_out, cfg, [gcs] if gcs else [], recorder)
+            services: list[TickService] = [gcs, WorldSync(gcs.params, sim.udp)] if gcs else []
+            runner = Runner(ctrl, manager, sim, servo_out, cfg, services, recorder)
             stats = runner.run(stop)
             link = sim.udp.stats.as_dict()
             asm = sim.assembler

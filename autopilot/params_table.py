@@ -17,6 +17,8 @@ all REAL32 (see "Encoding" below):
   MAV_SYS_ID             MAVLink system id (read-only)
   HOME_LAT, HOME_LON     home [deg] (read-only; float32 on the wire: ~1e-6 deg, ~0.1 m)
   HOME_ALT               home altitude AMSL [m] (read-only)
+  SIM_*                  the world's live knobs (heli_common.world.SIM_PARAMS: wind, gust,
+                         turbulence, servos), forwarded to the plant; see docs/world.md
 
 Ranges come from the ``spec`` metadata of the dataclasses the values end up in (Gains,
 PitchLimits, Run.rate_hz), so the table cannot accept what a config file would refuse;
@@ -61,6 +63,7 @@ from heli_common.mavlink.udp import (
     addressed_to,
 )
 from heli_common.mavlink.wire import decode_param, encode_param, f32
+from heli_common.world import SIM_PARAMS, World, sim_values, with_sim_param
 
 REAL32: int = mavlink.MAV_PARAM_TYPE_REAL32
 INT32: int = mavlink.MAV_PARAM_TYPE_INT32
@@ -173,6 +176,7 @@ def _build_specs() -> tuple[ParamSpec, ...]:
         ParamSpec("HOME_LON", REAL32, -180.0, 180.0, "deg", ro, "home longitude"),
         ParamSpec("HOME_ALT", REAL32, -1e4, 1e5, "m", ro, "home altitude AMSL"),
     ]
+    specs += [ParamSpec(p.name, REAL32, p.lo, p.hi, p.unit, rw, p.description) for p in SIM_PARAMS]
     return tuple(specs)
 
 
@@ -191,8 +195,10 @@ class ParamTable:
         home: GeoPoint | None = None,
         system_id: int = 1,
         component_id: int = 1,
+        world: World | None = None,
     ) -> None:
         self._gains = gains
+        self._world = world or World()
         self._pitch = pitch_limits
         self._failsafe = failsafe or FailsafeTimeouts()
         self.system_id = system_id
@@ -220,6 +226,7 @@ class ParamTable:
         values["MAV_SYS_ID"] = system_id
         home_values = (home.lat_deg, home.lon_deg, home.alt_amsl_m) if home else (0.0, 0.0, 0.0)
         values["HOME_LAT"], values["HOME_LON"], values["HOME_ALT"] = home_values
+        values.update(sim_values(self._world))
         for s in self._specs:
             v = float(values[s.name])
             if not s.in_range(v):
@@ -324,6 +331,16 @@ class ParamTable:
 
     def rate_hz(self) -> float:
         return self._values["TLC_RATE_HZ"]
+
+    def world(self) -> World:
+        """The world the SIM_ parameters describe (the loaded one with the table's values)."""
+        w = self._world
+        for p in SIM_PARAMS:
+            w = with_sim_param(w, p.name, self._values[p.name])
+        return w
+
+    def sim_values(self) -> dict[str, float]:
+        return {p.name: self._values[p.name] for p in SIM_PARAMS}
 
     def failsafe(self) -> FailsafeTimeouts:
         return replace(

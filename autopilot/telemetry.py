@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+import math
+
 from autopilot.reference import REF_ACC, REF_POS, REF_VEL
 from heli_common import frames, servo_map
+from heli_common.gusts import gust_factor, mean_wind_nwu
 from heli_common.mavlink.sim_protocol import state_fields
 from heli_common.mavlink.udp import Message, mavlink2
 from heli_common.state import FloatArray
+from heli_common.world import World
 
 # POSITION_TARGET_LOCAL_NED type_mask: position, velocity, acceleration and yaw used; yaw rate not
 TYPE_MASK_PVA_YAW = mavlink2.POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE
@@ -46,6 +50,20 @@ def attitude_target(t_us: int, att_cmd_flu_rad: tuple[float, float, float]) -> M
     )
     q = frames.euler_to_quaternion(roll, pitch, yaw)
     return mavlink2.MAVLink_attitude_target_message(t_us // 1000, mask, q, 0.0, 0.0, 0.0, 0.0)
+
+
+def wind_cov(t_us: int, world: World) -> Message:
+    """The air the world has at vehicle time ``t_us`` without its turbulence (steady wind +
+    gust), NED; the variances are the Dryden ones' vertical intensity, sigma_w^2 =
+    (0.1 W20)^2 (horizontal at least that: the exact value depends on height), 0 in calm."""
+    t_s = t_us / 1e6
+    w, g = world.wind, world.gust
+    air = mean_wind_nwu(w.speed_m_s, w.from_deg, w.elevation_deg)
+    k = gust_factor(t_s, g.start_s, g.rise_s, math.inf if g.hold_s < 0.0 else g.hold_s, g.fall_s)
+    air = air + k * mean_wind_nwu(g.amplitude_m_s, g.from_deg, g.elevation_deg)
+    n, e, d = frames.nwu_to_ned(air)
+    var = (0.1 * world.turbulence.w20_m_s) ** 2
+    return mavlink2.MAVLink_wind_cov_message(t_us, n, e, d, var, var, math.nan, math.nan, math.nan)
 
 
 def servo_output(t_us: int, pitches_rad: FloatArray, limits: FloatArray) -> Message:

@@ -146,3 +146,40 @@ def bench_accuracy() -> list[Row]:
         Row("RMS error [45, 120] s, 10 ms RK4", rms45(coarse), "m", *below(rms45(coarse), 0.05)),
         Row("RMS error [45, 120] s change, 10 ms vs 0.25 ms", gap, "m", *below(gap, 1e-4)),
     ]
+
+
+@bench("in-process closed loop, world")
+def bench_world() -> list[Row]:
+    """The paper flight with every effect of the world on (``--world everything``), and
+    each effect alone: its cost per plant step over the ideal world's flight (best of 3)."""
+    from heli_common.world import AirLoads, Disturbance, Gust, Turbulence, Wind, World
+
+    sc = Scenario.load("paper")
+    everything = World.load("everything")
+
+    def wall(world: World | None) -> float:
+        return min(simulate(sc, SimOptions(world=world)).wall_s for _ in range(3))
+
+    n_steps = round(sc.run.duration_s * sc.run.rate_hz)
+    ideal = wall(None)
+    t_all = wall(everything)
+    rtf = sc.run.duration_s / t_all
+    rows = [
+        Row("paper 120 s at 100 Hz, --world everything: real-time factor", rtf, "x", *above(rtf, 1000.0)),
+        Row("  floor: the same flight in the ideal world, per tick", ideal / n_steps * 1e6, "us"),
+    ]
+    air = AirLoads(fuselage=True)
+    effects = {
+        "servos (delay, lag, rate, quantum, dead band)": World(servos=everything.servos),
+        "steady wind + fuselage drag": World(wind=Wind(speed_m_s=3.0), air=air),
+        "rotor inflow (both rotors, Newton)": World(air=AirLoads(rotor_inflow=True)),
+        "Dryden turbulence (+ drag)": World(turbulence=Turbulence(w20_m_s=3.0), air=air),
+        "1-cosine gust (+ drag)": World(gust=Gust(amplitude_m_s=2.0), air=air),
+        "model mismatch (constants only)": World(mismatch=everything.mismatch),
+        "injected sinusoidal force": World(disturbance=Disturbance(kind="sine", force_n=(1.0, 0.0, 0.0),
+                                                                     frequency_hz=0.2)),
+    }  # fmt: skip
+    for name, world in effects.items():
+        cost = (wall(world) - ideal) / n_steps * 1e6
+        rows.append(Row(f"  cost per plant step: {name}", cost, "us"))
+    return rows

@@ -111,3 +111,48 @@ def _tracking_panels(
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+WORLD_FIGURE = "fig10_world.png"
+WORLD_CSV_HEADER = ("t", "air_n", "air_w", "air_u", "theta_m_pos", "theta_t_pos", "eps_pos", "eta_pos")
+
+
+def plot_world(
+    t: npt.NDArray[np.float64], air_nwu_m_s: npt.NDArray[np.float64], commanded: npt.NDArray[np.float64],
+    reached: npt.NDArray[np.float64], out_dir: Path, title: str = "",
+) -> Path:  # fmt: skip
+    """Fig 10: the air velocity (earth NWU) and each servo's command against the pitch it
+    reached, for a flight in a world (``--world``)."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    path = out_dir / WORLD_FIGURE
+    fig, axs = plt.subplots(5, 1, figsize=(8, 11), sharex=True)
+    for i, (name, style) in enumerate((("north", "b"), ("west", "g"), ("up", "m"))):
+        axs[0].plot(t, air_nwu_m_s[:, i], style, lw=0.9, label=name)
+    axs[0].set_ylabel("air [m/s]")
+    axs[0].legend(loc="lower right", bbox_to_anchor=(1.0, 1.0), ncol=3, frameon=False, fontsize=8)
+    for i, key in enumerate(("theta_m", "theta_t", "eps", "eta")):
+        a = axs[i + 1]
+        a.plot(t, commanded[:, i], "k--", lw=0.9, label="command")
+        a.plot(t, reached[:, i], "b", lw=1.0, label="servo")
+        a.set_ylabel(f"{key} [rad]")
+        a.grid(alpha=0.3)
+    axs[0].grid(alpha=0.3)
+    axs[1].legend(loc="lower right", bbox_to_anchor=(1.0, 1.0), ncol=2, frameon=False, fontsize=8)
+    suffix = f" - {title}" if title else ""
+    fig.suptitle(f"Fig. 10: air velocity, servo command vs position{suffix}", fontsize=10)
+    axs[-1].set_xlabel("t [s]")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+Array = npt.NDArray[np.float64]
+
+
+def write_world_csv(path: Path, t: Array, air_nwu_m_s: Array, reached: Array) -> None:
+    """world.csv: per tick, the air velocity (NWU, m/s) and the pitches the servos reached (rad)."""
+    rows = np.column_stack([t, air_nwu_m_s, reached])
+    with path.open("w", newline="") as fh:
+        csv.writer(fh).writerow(WORLD_CSV_HEADER)
+        fh.write("".join(",".join(f"{v:.9g}" for v in r) + "\r\n" for r in rows.tolist()))

@@ -13,11 +13,13 @@ comes FROM, degrees clockwise from north, and an elevation (90 = pure updraft).
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
 from heli_common.airframe import Airframe
 from heli_common.config import ConfigError, load, spec
+from heli_common.mavlink.wire import f32
 
 Channels = tuple[float, float, float, float]  # theta_m, theta_t, eps, eta
 ZERO4: Channels = (0.0, 0.0, 0.0, 0.0)
@@ -209,3 +211,91 @@ class World:
 
 
 CALM = World()
+
+
+# ---------------------------------------------------------------- live knobs (SIM_*)
+
+#: blade pitch per servo-arm angle, theta_m, theta_t, eps, eta: the pitch limits over a
+#: 45 deg servo throw (an estimate: no X-Cell linkage data was found)
+LINKAGE_RAD_PER_RAD: Channels = (0.255, 0.446, 0.178, 0.178)
+
+
+@dataclass(frozen=True)
+class SimParam:
+    """A world setting a ground station reads and sets as a MAVLink parameter."""
+
+    name: str
+    lo: float
+    hi: float
+    unit: str
+    description: str
+
+
+#: ArduPilot's SIM_ names where it has the setting (SIM_WIND_TURB and SIM_SERVO_SPEED with
+#: this bench's models behind them; see docs/world.md), this bench's own otherwise.
+SIM_PARAMS: tuple[SimParam, ...] = (
+    SimParam("SIM_WIND_SPD", 0.0, 100.0, "m/s", "steady wind speed"),
+    SimParam("SIM_WIND_DIR", -360.0, 360.0, "deg", "direction the wind comes from"),
+    SimParam("SIM_WIND_DIR_Z", -90.0, 90.0, "deg", "wind elevation (90: updraft)"),
+    SimParam("SIM_WIND_TURB", 0.0, 50.0, "m/s", "Dryden turbulence: wind at 20 ft (W20)"),
+    SimParam("SIM_GUST_SPD", 0.0, 50.0, "m/s", "1-cosine gust amplitude"),
+    SimParam("SIM_GUST_DIR", -360.0, 360.0, "deg", "direction the gust comes from"),
+    SimParam("SIM_GUST_START", 0.0, 1e6, "s", "gust start, vehicle time"),
+    SimParam("SIM_SERVO_SPEED", 0.0, 10.0, "s", "servo time per 60 deg of arm (0: no limit)"),
+    SimParam("SIM_SERVO_DELAY", 0.0, 1.0, "s", "servo transport delay"),
+    SimParam("SIM_SERVO_TAU", 0.0, 5.0, "s", "servo first-order lag"),
+)
+SIM_PARAM_NAMES = frozenset(p.name for p in SIM_PARAMS)
+
+
+def _servo_speed(servos: Servos) -> float:
+    """The servo speed (s/60 deg) the cyclic rate limit implies; 0 without a limit."""
+    rate = servos.rate_rad_s[2]
+    return 0.0 if rate <= 0.0 else LINKAGE_RAD_PER_RAD[2] * (math.pi / 3.0) / rate
+
+
+def sim_values(w: World) -> dict[str, float]:
+    """The SIM_ parameters of a world (the servo values of the cyclic channel where they
+    differ per channel)."""
+    return {
+        "SIM_WIND_SPD": w.wind.speed_m_s,
+        "SIM_WIND_DIR": w.wind.from_deg,
+        "SIM_WIND_DIR_Z": w.wind.elevation_deg,
+        "SIM_WIND_TURB": w.turbulence.w20_m_s,
+        "SIM_GUST_SPD": w.gust.amplitude_m_s,
+        "SIM_GUST_DIR": w.gust.from_deg,
+        "SIM_GUST_START": w.gust.start_s,
+        "SIM_SERVO_SPEED": _servo_speed(w.servos),
+        "SIM_SERVO_DELAY": w.servos.delay_s[2],
+        "SIM_SERVO_TAU": w.servos.tau_s[2],
+    }
+
+
+def with_sim_param(w: World, name: str, value: float) -> World:
+    """``w`` with one SIM_ parameter set (ValueError: unknown name or out of range). A
+    servo parameter sets all four servos; the speed goes through each linkage ratio."""
+    spec_ = next((p for p in SIM_PARAMS if p.name == name), None)
+    if spec_ is None:
+        raise ValueError(f"unknown world parameter {name!r}")
+    if not (math.isfinite(value) and spec_.lo <= value <= spec_.hi):
+        raise ValueError(f"{name} must be in [{spec_.lo}, {spec_.hi}] {spec_.unit}, got {value}")
+    if f32(value) == f32(sim_values(w)[name]):
+        # the value it already has (as float32, the wire's): the world stays exactly as
+        # loaded, so a repeated or echoed setting never rewrites per-servo values
+        return w
+    r = dataclasses.replace
+    if name.startswith("SIM_WIND_") and name != "SIM_WIND_TURB":
+        field = {"SIM_WIND_SPD": "speed_m_s", "SIM_WIND_DIR": "from_deg", "SIM_WIND_DIR_Z": "elevation_deg"}
+        return r(w, wind=r(w.wind, **{field[name]: value}))
+    if name == "SIM_WIND_TURB":
+        return r(w, turbulence=r(w.turbulence, w20_m_s=value))
+    if name.startswith("SIM_GUST_"):
+        field = {"SIM_GUST_SPD": "amplitude_m_s", "SIM_GUST_DIR": "from_deg", "SIM_GUST_START": "start_s"}
+        return r(w, gust=r(w.gust, **{field[name]: value}))
+    four = (value,) * 4
+    if name == "SIM_SERVO_SPEED":
+        rates = tuple(0.0 if value == 0.0 else k * (math.pi / 3.0) / value for k in LINKAGE_RAD_PER_RAD)
+        return r(w, servos=r(w.servos, rate_rad_s=rates))
+    if name == "SIM_SERVO_DELAY":
+        return r(w, servos=r(w.servos, delay_s=four))
+    return r(w, servos=r(w.servos, tau_s=four))

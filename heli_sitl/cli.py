@@ -28,7 +28,7 @@ def _simulate(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from autopilot.scenario import Scenario
-    from ground.plots import plot_figures
+    from ground.plots import plot_figures, plot_world, write_world_csv
     from heli_sitl.closed_loop import SimOptions, simulate
 
     scenario = Scenario.load(args.scenario)
@@ -52,7 +52,13 @@ def _simulate(args: argparse.Namespace) -> int:
         record = simulate(scenario, opts, progress)
     record.write_csv(out / "run.csv")
     summary = record.write_summary(out / "summary.json")
-    figs = plot_figures(record.columns(), out, title=f"{scenario.run.name}, {record.extra['feedforward']}")
+    title = f"{scenario.run.name}, {record.extra['feedforward']}"
+    figs = plot_figures(record.columns(), out, title=title)
+    if record.air_nwu_m_s is not None and record.servo_rad is not None:
+        figs.append(plot_world(record.t_s, record.air_nwu_m_s, record.pitches, record.servo_rad, out,
+                               title=f"{title}, world {opts.world.name if opts.world else ''}"))  # fmt: skip
+        write_world_csv(out / "world.csv", record.t_s, record.air_nwu_m_s, record.servo_rad)
+        figs.append(out / "world.csv")
     rms = summary["rms_pos_err_m"]
     print("RMS 3-D position error: " + ", ".join(f"[{k}] s {v:.4f} m" for k, v in rms.items()))
     jump = summary["max_pos_err_40_45_m"]  # the paper's slope jump: its scenario only

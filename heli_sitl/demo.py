@@ -62,7 +62,7 @@ def run_demo(opts: DemoOptions) -> dict[str, object]:
         common += ["--duration-s", str(opts.duration_s)]
     plant_cmd = _cmd("heli_sitl.cli") + ["run", *common, "--port", str(pp),
                                          "--autopilot-port", str(ap), *opts.extra_plant_args]
-    if opts.world:
+    if opts.world:  # the plant flies it; the autopilot serves its SIM_ parameters
         plant_cmd += ["--world", opts.world]
     ground_cmd: list[str] | None = None
     gcs_port = free_udp_port()
@@ -79,6 +79,8 @@ def run_demo(opts: DemoOptions) -> dict[str, object]:
                                       "--local-api-port", str(free_udp_port()),
                                       "--out", str(opts.out),
                                       *opts.extra_autopilot_args]  # fmt: skip
+    if opts.world:
+        ap_cmd += ["--world", opts.world]
     if opts.via_ground:
         ap_cmd += ["--gcs-port", str(gcs_port), "--summary-end-s",
                    str(opts.duration_s or scenario_duration_s(opts.scenario))]  # fmt: skip
@@ -156,7 +158,8 @@ def up_commands(opts: UpOptions) -> list[tuple[str, list[str]]]:
         "--gcs-port", str(opts.gcs_port), "--api-port", str(opts.api_port),
         "--local-gcs-port", str(opts.local_gcs_port), "--local-api-port", str(opts.local_api_port),
         "--sysid", str(opts.sysid),
-    ] + (["--signing-key", opts.signing_key] if opts.signing_key else []) + (
+    ] + (["--world", opts.world] if opts.world else []) + (
+        ["--signing-key", opts.signing_key] if opts.signing_key else []) + (
         ["--out", opts.out] if opts.out else []
     )  # fmt: skip
     return [("plant", plant), ("autopilot", autopilot)]

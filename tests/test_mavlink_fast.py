@@ -492,3 +492,20 @@ def test_codec_with_python_crc(monkeypatch: pytest.MonkeyPatch) -> None:
     data, _ = _three()
     assert data == DATA
     assert SimCodec().decode(DATA) == REFERENCE
+
+
+@given(
+    st.text(alphabet="ABCDEFGHIJKLMNOPQRSTUVWXYZ_0123456789", min_size=1, max_size=16),
+    st.floats(width=32, allow_nan=False),
+    st.integers(0, 255),
+    st.integers(0, 255),
+)
+def test_param_set_decodes_as_pymavlink_packs_it(name: str, value: float, target: int, comp: int) -> None:
+    """The world's live knobs travel as PARAM_SET on the sim link: pymavlink packs, the fast
+    codec reads the same name, value and address (names of 16 characters have no NUL)."""
+    mav = m2.MAVLink(None, srcSystem=1, srcComponent=1)
+    data = m2.MAVLink_param_set_message(target, comp, name.encode(), value, 9).pack(mav)
+    (got,) = SimCodec().decode(data)
+    assert isinstance(got, mavlink_fast.ParamSet)
+    assert (got.param_id, got.param_value, got.target_system, got.target_component, got.param_type) == (
+        name, value, target, comp, 9)  # fmt: skip

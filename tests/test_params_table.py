@@ -62,7 +62,7 @@ def f32(x: float) -> float:
 
 def test_names_are_unique_short_and_stable() -> None:
     names = [s.name for s in SPECS]
-    assert len(names) == len(set(names)) == 43
+    assert len(names) == len(set(names)) == 53  # 43 of the vehicle, 10 SIM_ of the world
     assert all(0 < len(n) <= 16 and n.isascii() and n.upper() == n for n in names)
     assert names[:3] == ["TLC_L1_W_X", "TLC_L1_W_Y", "TLC_L1_W_Z"]
     for required in (
@@ -328,3 +328,21 @@ def test_gains_dataclass_fields_all_mapped() -> None:
                 n_floats += len(v) if isinstance(v, tuple) else 1
     gain_params = [s for s in SPECS if s.name.startswith("TLC_") and s.name != "TLC_RATE_HZ"]
     assert len(gain_params) == n_floats
+
+
+def test_the_world_knobs_read_and_set_as_parameters() -> None:
+    """SIM_ parameters start at the loaded world's values, are range-checked like the rest,
+    and the table's world() is the loaded world with them applied (a knob set to the value
+    it has changes nothing, even where the file sets servos one by one)."""
+    from heli_common.world import World
+
+    sc_world = World.load("everything")
+    t = ParamTable(GAINS, AIRFRAME.limits, 100.0, world=sc_world)
+    assert t.get("SIM_WIND_SPD") == 3.0 and t.get("SIM_WIND_DIR") == 270.0
+    assert t.get("SIM_SERVO_DELAY") == 0.01 and t.get("SIM_SERVO_SPEED") == pytest.approx(0.14, rel=2e-3)
+    assert t.world() == sc_world
+    assert t.set("SIM_WIND_SPD", 150.0).accepted is False and t.get("SIM_WIND_SPD") == 3.0
+    assert t.set("SIM_WIND_SPD", 8.0, armed=True).accepted  # a live knob: settable in flight
+    assert t.world().wind.speed_m_s == 8.0
+    assert t.set("SIM_SERVO_SPEED", 0.07).accepted  # twice as fast: every rate limit doubles
+    assert t.world().servos.rate_rad_s[2] == pytest.approx(2 * 0.178 * math.pi / 3 / 0.14, rel=1e-6)

@@ -159,3 +159,30 @@ def test_a_world_file_with_wind_but_no_air_is_refused(tmp_path: object) -> None:
     p.write_text("[wind]\nsped_m_s = 3.0\n")
     with pytest.raises(ConfigError, match="did you mean 'speed_m_s'"):
         World.load(p)
+
+
+def test_simulate_shows_the_world(tmp_path: object) -> None:
+    """`heli-sitl simulate --world` writes Fig 10 and world.csv (the air and the servo
+    positions per tick) and names the world in summary.json; a bad world is a usage error."""
+    import csv
+    import json
+    from pathlib import Path
+
+    from heli_sitl import cli
+
+    out = Path(str(tmp_path)) / "out"
+    assert cli.main(["simulate", "--world", "servos-default", "--duration-s", "5", "--quiet",
+                     "--out", str(out)]) == 0  # fmt: skip
+    assert (out / "fig10_world.png").stat().st_size > 10_000
+    with (out / "world.csv").open() as fh:
+        rows = list(csv.reader(fh))
+    assert rows[0][:4] == ["t", "air_n", "air_w", "air_u"] and len(rows) == 502
+    run = np.loadtxt(out / "run.csv", delimiter=",", skiprows=1)
+    reached = np.array(rows[1:], dtype=float)[:, 4:8]
+    commanded = run[:, 11:15]
+    # the servos lag the command (10 ms delay, 20 ms lag), and follow it
+    assert 0.0 < np.abs(reached - commanded).max() < 0.3
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["world"]["name"] == "servos-default"
+    assert summary["world"]["servos"]["delay_s"] == [0.01] * 4
+    assert cli.main(["simulate", "--world", "nosuchworld", "--out", str(out)]) == 2

@@ -22,6 +22,7 @@ import scipy.signal
 import scipy.stats
 from numpy.testing import assert_allclose
 
+from heli_common.gusts import gust_factor, mean_wind_nwu
 from heli_common.jit import njit
 from heli_common.state import FloatArray
 from heli_sitl.plant.world import noise
@@ -48,8 +49,6 @@ from heli_sitl.plant.world.wind import (
     dryden_low_altitude,
     dryden_output,
     dryden_step,
-    gust_factor,
-    mean_wind_nwu,
     second_order_discrete,
     turbulence_nwu,
 )

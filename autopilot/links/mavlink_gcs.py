@@ -83,6 +83,7 @@ DEFAULT_RATES_HZ: dict[int, float] = {
     m2.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 1.0,
     m2.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED: 10.0,
     m2.MAVLINK_MSG_ID_ATTITUDE_TARGET: 10.0,
+    m2.MAVLINK_MSG_ID_WIND_COV: 2.0,
     m2.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW: 10.0,
     m2.MAVLINK_MSG_ID_MISSION_CURRENT: 1.0,
     m2.MAVLINK_MSG_ID_VFR_HUD: 4.0,
@@ -357,6 +358,8 @@ class GcsService:
             if self._ref is None:
                 return None
             return telemetry.attitude_target(t_us, self._att_cmd)
+        if msg_id == m2.MAVLINK_MSG_ID_WIND_COV:
+            return telemetry.wind_cov(t_us, self.params.world())
         if msg_id == m2.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW:
             return telemetry.servo_output(t_us, self._u, self.limits)
         if msg_id == m2.MAVLINK_MSG_ID_MISSION_CURRENT:

@@ -20,6 +20,7 @@ the MAVLink generator orders them) come from pymavlink 2.4.50's ``common`` diale
     ATTITUDE             (30,  CRC_EXTRA 39):  <Iffffff             28 bytes
     LOCAL_POSITION_NED   (32,  CRC_EXTRA 185): <Iffffff             28 bytes
     HIL_ACTUATOR_CONTROLS(93,  CRC_EXTRA 47):  <QQ16fB              81 bytes
+    PARAM_SET            (23,  CRC_EXTRA 168): <fBB16sB            23 bytes (world settings, rare)
 
 Decoding walks a datagram frame by frame and never raises: frames with a bad CRC, a
 declared length running past the datagram, or an unknown message id are counted and
@@ -54,17 +55,20 @@ MSG_ID_ATTITUDE: Final = 30
 MSG_ID_LOCAL_POSITION_NED: Final = 32
 MSG_ID_HIL_ACTUATOR_CONTROLS: Final = 93
 MSG_ID_HIL_STATE_QUATERNION: Final = 115
+MSG_ID_PARAM_SET: Final = 23
 
 _CRC_EXTRA_ATT: Final = 39
 _CRC_EXTRA_LPN: Final = 185
 _CRC_EXTRA_ACT: Final = 47
 _CRC_EXTRA_HIL: Final = 4
+_CRC_EXTRA_PARAM_SET: Final = 168
 # msgid -> CRC_EXTRA, the per-message seed that makes a layout change fail the CRC
 _CRC_EXTRA: Final[dict[int, int]] = {
     MSG_ID_ATTITUDE: _CRC_EXTRA_ATT,
     MSG_ID_LOCAL_POSITION_NED: _CRC_EXTRA_LPN,
     MSG_ID_HIL_ACTUATOR_CONTROLS: _CRC_EXTRA_ACT,
     MSG_ID_HIL_STATE_QUATERNION: _CRC_EXTRA_HIL,
+    MSG_ID_PARAM_SET: _CRC_EXTRA_PARAM_SET,
 }
 
 _STX_V2: Final = 0xFD
@@ -79,6 +83,7 @@ _HIL: Final = struct.Struct("<Q4ffffiiihhhHHhhh")
 _ATT: Final = struct.Struct("<Iffffff")
 _LPN: Final = _ATT  # same layout, kept apart by name for readability
 _ACT: Final = struct.Struct("<QQ16fB")
+_PSET: Final = struct.Struct("<fBB16sB")
 # after the magic byte: len, incompat, compat, seq, sysid, compid, msgid low 16, msgid high 8
 _HDR: Final = struct.Struct("<BBBBBBHB")
 _U16: Final = struct.Struct("<H")
@@ -86,6 +91,7 @@ _SIZE_HIL: Final = _HIL.size
 _SIZE_ATT: Final = _ATT.size
 _SIZE_LPN: Final = _LPN.size
 _SIZE_ACT: Final = _ACT.size
+_SIZE_PSET: Final = _PSET.size
 
 
 def _crc_table() -> tuple[int, ...]:
@@ -200,7 +206,22 @@ class HilActuatorControls(NamedTuple):
         return "HIL_ACTUATOR_CONTROLS"
 
 
-Decoded: TypeAlias = HilStateQuaternion | Attitude | LocalPositionNed | HilActuatorControls
+class ParamSet(NamedTuple):
+    msgid: int
+    sysid: int
+    compid: int
+    seq: int
+    param_value: float
+    target_system: int
+    target_component: int
+    param_id: str
+    param_type: int
+
+    def get_type(self) -> str:
+        return "PARAM_SET"
+
+
+Decoded: TypeAlias = HilStateQuaternion | Attitude | LocalPositionNed | HilActuatorControls | ParamSet
 
 # tuple.__new__ skips the NamedTuple's generated Python __new__ (half the cost of a result)
 _new = tuple.__new__
@@ -396,6 +417,15 @@ class SimCodec:
                                             (msgid, sysid, compid, seq, t[0], t[1:5]) + t[5:],
                                         )
                                     )
+                                elif msgid == MSG_ID_PARAM_SET:
+                                    v, ts, tc, pid, ptype = (
+                                        _PSET.unpack_from(data, p0)
+                                        if n >= _SIZE_PSET
+                                        else _PSET.unpack(data[p0:pend] + _PAD[_SIZE_PSET - n])
+                                    )
+                                    name = pid.split(b"\0", 1)[0].decode("ascii", "replace")
+                                    t = (msgid, sysid, compid, seq, v, ts, tc, name, ptype)
+                                    out.append(_new(ParamSet, t))
                                 else:  # HIL_ACTUATOR_CONTROLS; wire order: time, flags, controls, mode
                                     t = (
                                         _ACT.unpack_from(data, p0)

@@ -7,7 +7,7 @@ import numpy as np
 from heli_common.airframe import Airframe, PlantConstants
 from heli_common.jit import njit
 from heli_common.state import N_PITCH, N_STATE, FloatArray
-from heli_common.world import World
+from heli_common.world import World, with_sim_param
 from heli_sitl.plant.contact import apply_ground_contact
 from heli_sitl.plant.integrate import rk4_step
 from heli_sitl.plant.world.model import WP_SERVOS_ON, WP_TURB_ON, WorldModel, world_plant_step
@@ -58,6 +58,8 @@ class Plant:
         self.x = np.array(x0, dtype=float)
         if self.x.shape != (N_STATE,) or not np.all(np.isfinite(self.x)):
             raise ValueError("initial state must be 12 finite numbers")
+        self.design = airframe
+        self.world_config = world if world is not None else World()
         self.world = WorldModel.build(world, airframe, self.x) if world is not None and world.on else None
         self.airframe = airframe if self.world is None else self.world.airframe
         self.constants = self.airframe.constants()
@@ -82,6 +84,25 @@ class Plant:
         if u.shape != (N_PITCH,) or not accept_pitches(u, self.lo, self.hi, self.u):
             self.rejected_commands += 1
             return False
+        return True
+
+    def set_sim_param(self, name: str, value: float) -> bool:
+        """A live world setting (a SIM_ parameter): taken from the next step on. False (and
+        nothing changed) for an unknown name or a bad value; the same value again is a
+        no-op, so a sender may repeat itself."""
+        try:
+            new = with_sim_param(self.world_config, name, value)
+        except ValueError:
+            return False
+        if new == self.world_config:
+            return True
+        self.world_config = new
+        limits = np.column_stack([self.lo, self.hi])
+        if self.world is None:
+            if new.on:  # the world switched on in flight: the airframe stays the plant's
+                self.world = WorldModel.build(new, self.airframe, self.x)
+        else:
+            self.world.update(new, limits)
         return True
 
     def step(self, dt_s: float) -> FloatArray:

@@ -17,10 +17,11 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from heli_common.links import ServoCommand, ServoInput
-from heli_common.mavlink.fast import SimCodec
+from heli_common.mavlink.fast import ParamSet, SimCodec
 from heli_common.mavlink.sim_protocol import (
     encode_state,
     period_us,
+    receive,
 )
 from heli_common.mavlink.udp import MavlinkUdp
 from heli_common.servo_map import limits_array
@@ -50,6 +51,8 @@ class SimStats:
     stale_commands: int = 0  # time stamp not the current step's (lockstep) or older (realtime)
     bad_commands: int = 0  # NaN, out of range
     future_commands: int = 0  # stamped later than the plant's own clock: refused
+    world_settings: int = 0  # SIM_ parameters taken (PARAM_SET on the sim link)
+    world_settings_refused: int = 0
     resent_states: int = 0
     silent_events: int = 0
     autopilot_silent: bool = False
@@ -68,6 +71,11 @@ class PlantServer:
         self.codec = SimCodec(system_id=1, component_id=51)
         self.limits = limits_array(plant.airframe.limits.as_tuple())
         self.servo_in: ServoInput = servo_in or MavlinkServoInput(link, self.codec, self.limits)
+        # world settings come on the MAVLink sim link: the MAVLink servo input hands them
+        # over; with another servo medium (CAN) nothing else reads that link, so we do
+        self._reads_settings = not isinstance(self.servo_in, MavlinkServoInput)
+        if isinstance(self.servo_in, MavlinkServoInput) and self.servo_in.on_setting is None:
+            self.servo_in.on_setting = self._setting
         if cfg.hold_until_armed and not self.servo_in.carries_arming:
             raise ValueError("hold_until_armed needs a servo link that carries the arming state")
         self.plant = plant
@@ -103,7 +111,22 @@ class PlantServer:
             log.info("autopilot armed: the vehicle is released")
         return self._waiting_for_arm
 
+    def _setting(self, name: str, value: float) -> None:
+        if self.plant.set_sim_param(name, value):
+            self.stats.world_settings += 1
+            log.info("world: %s = %g from t = %.3f s", name, value, self.t_us / 1e6)
+        else:
+            self.stats.world_settings_refused += 1
+            log.warning("world: refused %s = %g (unknown or out of range)", name, value)
+
+    def _poll_settings(self) -> None:
+        for msg in receive(self.link, self.codec):
+            if isinstance(msg, ParamSet) and msg.target_component == self.codec.compid:
+                self._setting(msg.param_id, msg.param_value)
+
     def _advance(self, dt: float) -> None:
+        if self._reads_settings:
+            self._poll_settings()
         if self._waiting_for_arm:
             # held: time passes at wall-clock pace so that ground stations see a live
             # vehicle and the mission protocol's timeouts mean what they say

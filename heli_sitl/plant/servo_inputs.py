@@ -7,9 +7,10 @@ the medium.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 
 from heli_common.links import ServoCommand
-from heli_common.mavlink.fast import HilActuatorControls, SimCodec
+from heli_common.mavlink.fast import HilActuatorControls, ParamSet, SimCodec
 from heli_common.mavlink.sim_protocol import MAV_MODE_FLAG_SAFETY_ARMED, decode_command, receive
 from heli_common.mavlink.udp import MavlinkUdp
 from heli_common.state import FloatArray
@@ -20,15 +21,23 @@ REFUSAL_KEYS = ("missing_actuator", "duplicate_actuator", "wrong_command_type", 
 LOCKSTEP_SPIN_S = 0.002  # poll this long before sleeping (see MavlinkUdp.wait)
 
 
+Setting = Callable[[str, float], None]
+
+
 class MavlinkServoInput:
-    """HIL_ACTUATOR_CONTROLS: time-stamped, with the arming flag in ``mode``."""
+    """HIL_ACTUATOR_CONTROLS: time-stamped, with the arming flag in ``mode``. A PARAM_SET
+    for this component on the same link is a world setting, handed to ``on_setting`` in
+    the order it came (before a command that followed it)."""
 
     carries_arming = True
 
-    def __init__(self, link: MavlinkUdp, codec: SimCodec, limits: FloatArray) -> None:
+    def __init__(
+        self, link: MavlinkUdp, codec: SimCodec, limits: FloatArray, on_setting: Setting | None = None
+    ) -> None:
         self.link = link
         self.codec = codec
         self.limits = limits
+        self.on_setting = on_setting
         self._refused = 0
 
     @property
@@ -40,6 +49,10 @@ class MavlinkServoInput:
             self.link.wait(wait_s, spin_s=LOCKSTEP_SPIN_S)
         out = []
         for msg in receive(self.link, self.codec):
+            if isinstance(msg, ParamSet):
+                if self.on_setting is not None and msg.target_component == self.codec.compid:
+                    self.on_setting(msg.param_id, msg.param_value)
+                continue
             if not isinstance(msg, HilActuatorControls):
                 continue
             cmd = decode_command(msg, self.limits)

@@ -27,6 +27,7 @@ from typing import NamedTuple
 import numpy as np
 
 from heli_common.airframe import Airframe, PlantConstants
+from heli_common.gusts import gust_factor, mean_wind_nwu
 from heli_common.jit import njit
 from heli_common.kinematics import rot_body_to_earth
 from heli_common.state import N_PITCH, P_X, PHI, PSI, Q_Y, R_Z, THETA, U_F, V_L, W_U, FloatArray
@@ -96,7 +97,7 @@ def air_velocity_nwu(
     t: float, wp: FloatArray, ws: FloatArray, dryden: FloatArray
 ) -> tuple[float, float, float]:
     """W at ``t``: steady wind + gust + turbulence (advancing the Dryden filters one step)."""
-    g = wind.gust_factor(t, wp[WP_GUST_START], wp[WP_GUST_RISE], wp[WP_GUST_HOLD], wp[WP_GUST_FALL])
+    g = gust_factor(t, wp[WP_GUST_START], wp[WP_GUST_RISE], wp[WP_GUST_HOLD], wp[WP_GUST_FALL])
     wx = wp[WP_WIND] + g * wp[WP_GUST]
     wy = wp[WP_WIND + 1] + g * wp[WP_GUST + 1]
     wz = wp[WP_WIND + 2] + g * wp[WP_GUST + 2]
@@ -206,7 +207,31 @@ def _inflow_now(
 
 def _unit_from(from_deg: float, elevation_deg: float) -> FloatArray:
     """The direction air moves for a wind FROM ``from_deg`` at ``elevation_deg``, NWU."""
-    return np.asarray(wind.mean_wind_nwu(1.0, from_deg, elevation_deg), dtype=float)
+    return np.asarray(mean_wind_nwu(1.0, from_deg, elevation_deg), dtype=float)
+
+
+def world_parameters(world: World) -> FloatArray:
+    """The compiled step's parameter array for ``world`` (layout: the WP_* offsets)."""
+    wp = np.zeros(N_WP)
+    w = world.wind
+    wp[WP_WIND : WP_WIND + 3] = mean_wind_nwu(w.speed_m_s, w.from_deg, w.elevation_deg)
+    g = world.gust
+    wp[WP_GUST : WP_GUST + 3] = g.amplitude_m_s * _unit_from(g.from_deg, g.elevation_deg)
+    wp[WP_GUST_START], wp[WP_GUST_RISE] = g.start_s, g.rise_s
+    wp[WP_GUST_HOLD] = math.inf if g.hold_s < 0.0 else g.hold_s
+    wp[WP_GUST_FALL] = g.fall_s
+    wp[WP_TURB_ON] = 1.0 if world.turbulence.w20_m_s > 0.0 else 0.0
+    wp[WP_TURB_PSI_FROM] = math.radians(w.from_deg)
+    wp[WP_TURB_CALM] = 1.0 if w.speed_m_s == 0.0 else 0.0
+    wp[WP_SEED] = float(world.seed)
+    d = world.disturbance
+    wp[WP_DIST_FORCE : WP_DIST_FORCE + 3] = d.force_n
+    wp[WP_DIST_TORQUE : WP_DIST_TORQUE + 3] = d.torque_n_m
+    wp[WP_DIST_BODY] = 1.0 if d.frame == "body" else 0.0
+    wp[WP_DIST_KIND] = DIST_KINDS[d.kind]
+    wp[WP_DIST_START], wp[WP_DIST_FREQ] = d.start_s, d.frequency_hz
+    wp[WP_SERVOS_ON] = 1.0 if world.servos.on else 0.0
+    return wp
 
 
 @dataclass
@@ -241,25 +266,7 @@ class WorldModel:
             tip_speed_tail=af.tail_rotor.speed_rad_s * af.tail_rotor.radius_m,
             wake_factor=ar.wake_factor,
         )  # fmt: skip
-        wp = np.zeros(N_WP)
-        w = world.wind
-        wp[WP_WIND : WP_WIND + 3] = wind.mean_wind_nwu(w.speed_m_s, w.from_deg, w.elevation_deg)
-        g = world.gust
-        wp[WP_GUST : WP_GUST + 3] = g.amplitude_m_s * _unit_from(g.from_deg, g.elevation_deg)
-        wp[WP_GUST_START], wp[WP_GUST_RISE] = g.start_s, g.rise_s
-        wp[WP_GUST_HOLD] = math.inf if g.hold_s < 0.0 else g.hold_s
-        wp[WP_GUST_FALL] = g.fall_s
-        wp[WP_TURB_ON] = 1.0 if world.turbulence.w20_m_s > 0.0 else 0.0
-        wp[WP_TURB_PSI_FROM] = math.radians(w.from_deg)
-        wp[WP_TURB_CALM] = 1.0 if w.speed_m_s == 0.0 else 0.0
-        wp[WP_SEED] = float(world.seed)
-        d = world.disturbance
-        wp[WP_DIST_FORCE : WP_DIST_FORCE + 3] = d.force_n
-        wp[WP_DIST_TORQUE : WP_DIST_TORQUE + 3] = d.torque_n_m
-        wp[WP_DIST_BODY] = 1.0 if d.frame == "body" else 0.0
-        wp[WP_DIST_KIND] = DIST_KINDS[d.kind]
-        wp[WP_DIST_START], wp[WP_DIST_FREQ] = d.start_s, d.frequency_hz
-        wp[WP_SERVOS_ON] = 1.0 if world.servos.on else 0.0
+        wp = world_parameters(world)
         ws = np.zeros(N_WS)
         # the inflow solver's first guesses: about the hover inflow (it converges from anywhere)
         ws[WS_LAM_MAIN] = ws[WS_LAM_TAIL] = 0.05
@@ -291,6 +298,24 @@ class WorldModel:
         )
         held = self.ws[WS_PITCH : WS_PITCH + N_PITCH] if self.h_s else np.clip(u0, limits[:, 0], limits[:, 1])
         self.servo_s = servos.servo_state(self.servo_p, np.array(held))
+
+    def update(self, world: World, limits: FloatArray) -> None:
+        """Take new settings (live knobs) from the next step on: wind, gust, turbulence
+        intensity and servos; the turbulence filters keep their state (the process stays
+        continuous), the servos restart from where they are. Mismatch and air switches
+        are fixed for a run."""
+        old = self.world
+        self.world = world
+        self.wp = world_parameters(world)
+        if self.h_s == 0.0:
+            return  # not stepped yet: prepare() builds the rest
+        if world.turbulence != old.turbulence or world.wind != old.wind:
+            self._dryden(self.h_s)
+        if world.servos != old.servos and world.servos.on:
+            u = self.ws[WS_PITCH : WS_PITCH + N_PITCH].copy()
+            h, self.h_s = self.h_s, 0.0  # rebuilt at rest where the servos are now
+            self._servos(h, u, limits)
+            self.h_s = h
 
     def prepare(self, h_s: float, u0: FloatArray, limits: FloatArray) -> None:
         """Arrays for sub-step ``h_s`` (the first call, or a changed step)."""

@@ -2,10 +2,10 @@
 
 Three independent pieces, each a small pure function the plant composes:
 
-* :func:`mean_wind_nwu` maps ArduPilot's ``SIM_WIND_SPD``/``SIM_WIND_DIR``/``SIM_WIND_DIR_Z``
+* :func:`heli_common.gusts.mean_wind_nwu` maps ArduPilot's ``SIM_WIND_SPD`` / ``_DIR`` / ``_DIR_Z``
   to a steady air velocity.
-* :func:`gust_factor` is the shape of a discrete gust, 0..1: the 1-cosine rise of MIL-F-8785C
-  (also the MathWorks Discrete Wind Gust Model), optionally held and then ramped down with a
+* :func:`heli_common.gusts.gust_factor` is the shape of a discrete gust, 0..1: the 1-cosine rise
+  of MIL-F-8785C (also the MathWorks Discrete Wind Gust Model), optionally held and then ramped down with a
   cosine as in JSBSim's ``FGWinds::CosineGustProfile``. The caller scales a fixed earth
   direction by ``V_m * gust_factor``.
 * Dryden turbulence (MIL-F-8785C low-altitude model, the form JSBSim's ``FGWinds`` quotes):
@@ -106,25 +106,6 @@ N_DRYDEN_STATE = 5
 
 # Series vs closed form in _incomplete_gamma (both accurate to ~1e-16 relative there).
 _SERIES_X_MAX = 1.0
-
-
-@njit
-def mean_wind_nwu(speed_m_s: float, dir_from_deg: float, dir_z_deg: float) -> FloatArray:
-    """Steady air velocity [m/s, NWU] from ArduPilot's SIM_WIND_SPD / _DIR / _DIR_Z.
-
-    ``DIR`` is where the wind comes FROM, degrees clockwise from north; ``DIR_Z`` tilts it,
-    90 = pure updraft. ArduPilot's ``Aircraft::update_wind`` builds, in NED,
-    ``wind_ef = SPD (cos DIR cos DIR_Z, sin DIR cos DIR_Z, sin DIR_Z)`` and adds it to the
-    ground velocity to get the air-relative velocity, so the air velocity is ``-wind_ef``:
-    in NWU (y = -east, z = -down) ``W = SPD (-cos DIR cos DIR_Z, sin DIR cos DIR_Z, sin DIR_Z)``.
-    """
-    d = math.radians(dir_from_deg)
-    dz = math.radians(dir_z_deg)
-    w = np.empty(3)
-    w[0] = -speed_m_s * math.cos(d) * math.cos(dz)
-    w[1] = speed_m_s * math.sin(d) * math.cos(dz)
-    w[2] = speed_m_s * math.sin(dz)
-    return w
 
 
 @njit
@@ -324,27 +305,3 @@ def turbulence_nwu(
     else:
         cx, cy = -math.cos(psi_from_rad), math.sin(psi_from_rad)
     return u_g * cx - v_g * cy, u_g * cy + v_g * cx, w_g
-
-
-@njit
-def gust_factor(t_s: float, start_s: float, rise_s: float, hold_s: float, fall_s: float) -> float:
-    """Discrete gust shape in [0, 1]: 0, 1-cosine rise, hold, cosine fall, 0.
-
-    Rise ``(1 - cos(pi (t - start)/rise))/2`` over ``rise_s`` (MIL-F-8785C 1-cosine gust; the
-    MathWorks Discrete Wind Gust Model writes it in distance ``x`` with ``d_m``, here
-    ``rise = d_m/V`` at a fixed convection speed); then 1 for ``hold_s`` (``math.inf``: the gust
-    stays, the 8785C form); then ``(1 + cos(pi (t - t_fall)/fall))/2`` over ``fall_s`` (JSBSim's
-    cosine gust profile ends the same way). Zero durations give steps.
-    """
-    tau = t_s - start_s
-    if not tau >= 0.0:
-        return 0.0
-    if tau < rise_s:
-        return 0.5 * (1.0 - math.cos(math.pi * tau / rise_s))
-    tau -= rise_s
-    if tau <= hold_s:
-        return 1.0
-    tau -= hold_s
-    if tau < fall_s:
-        return 0.5 * (1.0 + math.cos(math.pi * tau / fall_s))
-    return 0.0
