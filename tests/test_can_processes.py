@@ -35,3 +35,26 @@ def test_demo_over_can_flies_the_paper_scenario(tmp_path: Path, extra: str) -> N
     assert s["max_pos_err_40_45_m"] <= 0.3
     assert s["can"]["send_errors"] == 0 and s["can"]["commands_sent"] >= 12001
     assert s["can"]["node_status_sent"] >= 120  # 1 Hz of flight time
+
+
+def test_the_world_flies_over_can_too(tmp_path: Path) -> None:
+    """The world is the plant's: with the servos on DroneCAN, `--world gusty` flies as it
+    does in-process, up to the float16 commands (the same air, seeded)."""
+    from autopilot.scenario import Scenario
+    from heli_common.world import World
+    from heli_sitl.closed_loop import SimOptions, simulate
+
+    reason = unshare_reason()
+    if reason is not None:
+        pytest.skip(reason)
+    demo = (f"{sys.executable} -m heli_sitl.cli demo --servo-link can --can-bus udp_multicast --autostart "
+            f"--world gusty --out {tmp_path}")  # fmt: skip
+    proc = subprocess.run(["unshare", "--net", "--", "bash", "-c", f"{NETNS_SETUP} && {demo}"],
+                          capture_output=True, text=True, timeout=600)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    s = json.loads((tmp_path / "summary.json").read_text())
+    assert s["servo_link"] == "can" and s["world"]["name"] == "gusty"
+    rms_in_process = simulate(Scenario.load("paper"), SimOptions(world=World.load("gusty"))).summary()
+    ref = rms_in_process["rms_pos_err_m"]["45-120"]
+    print(f"gusty over CAN: RMS [45, 120] s {s['rms_pos_err_m']['45-120']:.4f} m, in-process {ref:.4f} m")
+    assert s["rms_pos_err_m"]["45-120"] == pytest.approx(ref, rel=0.05)
