@@ -206,6 +206,17 @@ def vortex_ring_flag(mu: float, mu_z: float, lam_hover: float) -> bool:
 
 
 @njit
+def _loads(
+    theta: float, mu: float, mu_z: float, a: float, s: float, delta: float, thrust_scale: float,
+    torque_scale: float, tip_speed_m_s: float, eta_w: float, lam_guess: float,
+) -> tuple[float, float, float, float]:  # fmt: skip
+    """(thrust [N], torque [N m], lam, v_i [m/s]) of one rotor from its advance ratios."""
+    c_t, lam = _solve_inflow(theta, mu, mu_z, a, s, eta_w, lam_guess)
+    c_q = rotor_torque_coeff(c_t, lam, mu_z, s, delta)
+    return (c_t / s) * thrust_scale, (c_q / s) * torque_scale, lam, lam * tip_speed_m_s
+
+
+@njit
 def main_rotor_loads_in_air(
     theta_m: float,
     u_h: float,
@@ -224,9 +235,8 @@ def main_rotor_loads_in_air(
     ``v_i = lam Omega R`` is the downwash :func:`fuselage_force_flu` takes.
     """
     mu, mu_z = _advance_ratios(u_h, v_h, w_h, tip_speed_m_s)
-    c_t, lam = _solve_inflow(theta_m, mu, mu_z, c.a_m, c.s_m, eta_w, lam_guess)
-    c_q = rotor_torque_coeff(c_t, lam, mu_z, c.s_m, c.delta)
-    return (c_t / c.s_m) * c.thrust_scale_m, (c_q / c.s_m) * c.torque_scale_m, lam, lam * tip_speed_m_s
+    return _loads(theta_m, mu, mu_z, c.a_m, c.s_m, c.delta, c.thrust_scale_m, c.torque_scale_m,
+                  tip_speed_m_s, eta_w, lam_guess)  # fmt: skip
 
 
 @njit
@@ -248,9 +258,8 @@ def tail_rotor_loads_in_air(
     with ``u_h = u_a + q ht``, ``w_h = w_a + q lt``. ``tip_speed_m_s = Omega_t R_t``.
     """
     mu, mu_z = _advance_ratios(u_h, w_h, -v_h, tip_speed_m_s)
-    c_t, lam = _solve_inflow(theta_t, mu, mu_z, c.a_t, c.s_t, eta_w, lam_guess)
-    c_q = rotor_torque_coeff(c_t, lam, mu_z, c.s_t, c.delta)
-    return (c_t / c.s_t) * c.thrust_scale_t, (c_q / c.s_t) * c.torque_scale_t, lam, lam * tip_speed_m_s
+    return _loads(theta_t, mu, mu_z, c.a_t, c.s_t, c.delta, c.thrust_scale_t, c.torque_scale_t,
+                  tip_speed_m_s, eta_w, lam_guess)  # fmt: skip
 
 
 @njit
