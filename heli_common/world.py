@@ -198,8 +198,9 @@ class World:
         return (self.air_matters or self.air.fuselage or self.air.rotor_inflow or self.servos.on
                 or self.mismatch.on or self.disturbance.on)  # fmt: skip
 
-    def describe(self) -> dict[str, object]:
-        """What is on, for the summary (only the effects that are on)."""
+    def describe(self, design: Airframe | None = None) -> dict[str, object]:
+        """What is on, for the summary (only the effects that are on); with a mismatch and
+        the controller's ``design`` airframe, each plant constant that differs beside it."""
         out: dict[str, object] = {"name": self.name, "seed": self.seed}
         if self.source:
             out["file"] = self.source
@@ -207,6 +208,14 @@ class World:
             value = getattr(self, part)
             if value != type(value)():
                 out[part] = dataclasses.asdict(value)
+        if design is not None and self.mismatch.on:
+            base = Path(self.source).parent if self.source else None
+            plant, ctrl = self.mismatch.apply(design, base).constants(), design.constants()
+            out["plant_vs_design"] = {
+                k: [getattr(plant, k), getattr(ctrl, k)]
+                for k in plant._fields
+                if getattr(plant, k) != getattr(ctrl, k)
+            }
         return out
 
 

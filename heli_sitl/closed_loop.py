@@ -150,7 +150,7 @@ def simulate(
         "plant_substeps": plant.substeps,
     }  # fmt: skip
     if plant.world is not None:
-        extra["world"] = plant.world.describe(scenario.airframe)
+        extra["world"] = plant.world.world.describe(scenario.airframe)
     rec = FlightRecord.from_ticks(t, xs, refs, us, diags, wall, extra)
     if plant.world is not None:
         applied[n] = applied[n - 1] if n > 0 else plant.u

@@ -15,6 +15,7 @@ from pathlib import Path
 
 from heli_common.defaults import ports
 from heli_common.mavlink.udp import free_udp_port
+from heli_common.scenario_file import load_vehicle
 from heli_common.world import World
 from heli_sitl.children import Child, describe_exit, spawn, stop_all
 
@@ -118,7 +119,7 @@ def run_demo(opts: DemoOptions) -> dict[str, object]:
         raise DemoError("autopilot wrote no summary.json")
     summary: dict[str, object] = json.loads(summary_path.read_text())
     if opts.world:  # the world is the plant's: the autopilot's summary does not know it
-        summary["world"] = World.load(opts.world).describe()
+        summary["world"] = World.load(opts.world).describe(load_vehicle(opts.scenario)[0])
         summary_path.write_text(json.dumps(summary, indent=2) + "\n")
     return summary
 

@@ -186,3 +186,14 @@ def test_simulate_shows_the_world(tmp_path: object) -> None:
     assert summary["world"]["name"] == "servos-default"
     assert summary["world"]["servos"]["delay_s"] == [0.01] * 4
     assert cli.main(["simulate", "--world", "nosuchworld", "--out", str(out)]) == 2
+
+
+def test_the_summary_states_the_plant_beside_the_design(paper: Scenario) -> None:
+    rec = simulate(paper, SimOptions(duration_s=2.0, world=World.load("everything")))
+    diff = rec.extra["world"]["plant_vs_design"]
+    c = paper.airframe.constants()
+    assert diff["mass_kg"] == pytest.approx([1.1 * c.mass_kg, c.mass_kg])
+    assert diff["ixx"] == pytest.approx([1.1 * c.ixx, c.ixx])
+    # rotor speed -3 %: thrust per unit coefficient goes as Omega^2
+    assert diff["thrust_scale_m"][0] / diff["thrust_scale_m"][1] == pytest.approx(0.97**2)
+    assert "a_m" not in diff  # the lift slope was not changed

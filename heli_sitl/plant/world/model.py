@@ -326,18 +326,6 @@ class WorldModel:
             self._servos(h_s, u0, limits)
         self.h_s = h_s
 
-    def describe(self, design: Airframe) -> dict[str, object]:
-        """The world for a summary; with a mismatch, the plant's constants beside the design's."""
-        out = self.world.describe()
-        if self.world.mismatch.on:
-            plant, ctrl = self.airframe.constants(), design.constants()
-            out["plant_vs_design"] = {
-                k: [getattr(plant, k), getattr(ctrl, k)]
-                for k in plant._fields
-                if getattr(plant, k) != getattr(ctrl, k)
-            }
-        return out
-
     @property
     def air_nwu_m_s(self) -> FloatArray:
         return self.ws[WS_AIR : WS_AIR + 3].copy()
