@@ -164,6 +164,8 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
             servo_out: ServoOutput = CanServoOutput(can) if can is not None else sim
             services: list[TickService] = [gcs, WorldSync(gcs.params, sim.udp)] if gcs else []
             runner = Runner(ctrl, manager, sim, servo_out, cfg, services, recorder)
+            if gcs is not None:
+                gcs.truth = lambda: runner.sample
             stats = runner.run(stop)
             link = sim.udp.stats.as_dict()
             asm = sim.assembler
@@ -186,6 +188,7 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
         })  # fmt: skip
         recorder.close()
         record.write_csv(out / "run.csv")  # the whole flight again, at once
+        record.write_world_csv(out / "world.csv")
         if record.t_s.size:
             write_flight_tlog(out / "flight.tlog", record, limits, t0_unix_us)
         summary = record.write_summary(out / "summary.json")

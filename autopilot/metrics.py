@@ -17,6 +17,7 @@ CSV_HEADER = (
     "x_cmd", "y_cmd", "z_cmd", "psi_cmd", "theta_m", "theta_t", "eps", "eta", "phi_cmd", "theta_cmd",
 )  # fmt: skip
 PITCH_KEYS = ("theta_m", "theta_t", "eps", "eta")
+WORLD_CSV_HEADER = ("t", "air_n", "air_w", "air_u", "theta_m_pos", "theta_t_pos", "eps_pos", "eta_pos")
 
 
 @dataclass(frozen=True)
@@ -141,6 +142,16 @@ class FlightRecord:
         with path.open("w", newline="") as fh:
             csv.writer(fh).writerow(CSV_HEADER)
             write_rows(fh, self.rows())
+
+    def write_world_csv(self, path: Path) -> bool:
+        """world.csv: per tick, the air (earth NWU, m/s) and the pitches the servos reached
+        (rad), where the flight had a world; False (nothing written) without one."""
+        if self.air_nwu_m_s is None or self.servo_rad is None:
+            return False
+        with path.open("w", newline="") as fh:
+            csv.writer(fh).writerow(WORLD_CSV_HEADER)
+            write_rows(fh, np.column_stack([self.t_s, self.air_nwu_m_s, self.servo_rad]))
+        return True
 
     def write_summary(self, path: Path) -> dict[str, Any]:
         s = self.summary()

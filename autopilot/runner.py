@@ -9,6 +9,7 @@ using the newest state; it measures wake-up lateness, overruns and stale states.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import gc
 import logging
 import math
@@ -117,7 +118,11 @@ class Recorder:
     no copy of the record during the flight (doubling one array copies megabytes in one
     tick: 22 ms at 16384 rows, four skipped ticks at 400 Hz)."""
 
-    WIDTH = 1 + 12 + 9 + N_PITCH + N_DIAG + 2  # ... + trajectory time, landing flag
+    # t, state, reference, pitches, diagnostics, trajectory time, landing flag, and the
+    # world's truth when the plant flies one (air NWU, servo positions; NaN otherwise)
+    WIDTH = 1 + 12 + 9 + N_PITCH + N_DIAG + 2 + 3 + N_PITCH
+    _TRAJ_T = 22 + N_PITCH + N_DIAG
+    _AIR = _TRAJ_T + 2
 
     def __init__(self, capacity: int = 4096, stream_csv: Path | None = None, flush_every: int = 100) -> None:
         self._block = capacity
@@ -159,7 +164,7 @@ class Recorder:
 
     def add(
         self, t: float, x: FloatArray, ref: FloatArray, u: FloatArray, diag: FloatArray,
-        traj_t: float = math.nan, landing: bool = False,
+        traj_t: float = math.nan, landing: bool = False, truth: StateSample | None = None,
     ) -> None:  # fmt: skip
         i = self.n - (len(self._blocks) - 1) * self._block
         if i == self._block:
@@ -170,9 +175,13 @@ class Recorder:
         row[1:13] = x
         row[13:22] = ref
         row[22 : 22 + N_PITCH] = u
-        row[22 + N_PITCH : -2] = diag
-        row[-2] = traj_t
-        row[-1] = landing
+        row[22 + N_PITCH : self._TRAJ_T] = diag
+        row[self._TRAJ_T] = traj_t
+        row[self._TRAJ_T + 1] = landing
+        air = None if truth is None else truth.air_nwu_m_s
+        servo = None if truth is None else truth.servo_rad
+        row[self._AIR : self._AIR + 3] = math.nan if air is None else air
+        row[self._AIR + 3 :] = math.nan if servo is None else servo
         self.n += 1
 
     def rows_array(self, start: int = 0) -> FloatArray:
@@ -194,10 +203,14 @@ class Recorder:
         (e.g. the pitches a servo actually applied, one row per tick)."""
         b = self.rows_array(start)
         u = b[:, 22 : 22 + N_PITCH].copy() if pitches is None else np.asarray(pitches, dtype=float)
-        return FlightRecord.from_ticks(
-            b[:, 0].copy(), b[:, 1:13].copy(), b[:, 13:22].copy(), u, b[:, 22 + N_PITCH : -2], wall_s, extra,
-            traj_t_s=b[:, -2].copy(), landing=b[:, -1] != 0,
+        rec = FlightRecord.from_ticks(
+            b[:, 0].copy(), b[:, 1:13].copy(), b[:, 13:22].copy(), u, b[:, 22 + N_PITCH : self._TRAJ_T],
+            wall_s, extra, traj_t_s=b[:, self._TRAJ_T].copy(), landing=b[:, self._TRAJ_T + 1] != 0,
         )  # fmt: skip
+        air, servo = b[:, self._AIR : self._AIR + 3], b[:, self._AIR + 3 :]
+        if np.isfinite(air).any():
+            rec = dataclasses.replace(rec, air_nwu_m_s=air.copy(), servo_rad=servo.copy())
+        return rec
 
 
 class Runner:
@@ -227,6 +240,7 @@ class Runner:
         self._wall0: float | None = None
         self._t_arm_s = 0.0
         self._session = 0
+        self.sample: StateSample | None = None  # the state the tick runs on (with any world truth)
 
     def service(self, t_s: float, x: FloatArray) -> None:
         """The services' input, between ticks; also run while the plant is quiet."""
@@ -256,7 +270,7 @@ class Runner:
             if self.recorder is not None:  # flight time: since arming
                 landing = self.flight.mode is Mode.LAND
                 self.recorder.add(t_s - self._t_arm_s, x, ref, u, self.ctrl.diag,
-                                  self.manager.trajectory_time(t_s), landing)  # fmt: skip
+                                  self.manager.trajectory_time(t_s), landing, self.sample)  # fmt: skip
         self.stats.ticks += 1
         if t_us is not None:
             self.servo_out.send_pitches(t_us, self.u, self.flight.armed)
@@ -357,6 +371,7 @@ class Runner:
             t_s = s.t_us / 1e6
             if self._done(t_s):
                 break
+            self.sample = s
             self.tick(t_s, s.x, s.t_us)
             last_t_us = s.t_us
 
@@ -412,6 +427,7 @@ class Runner:
             if last_tick_wall is not None and wake - last_tick_wall > max(RESUME_GAP_S, 10 * period):
                 self._resume_after_gap(wake - last_tick_wall - period, t_s)
             last_tick_wall = wake
+            self.sample = latest
             self.tick(t_s, latest.x, latest.t_us)
             self.stats.work_s.append(time.monotonic() - wake)
             k += 1

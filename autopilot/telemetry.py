@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from autopilot.reference import REF_ACC, REF_POS, REF_VEL
 from heli_common import frames, servo_map
 from heli_common.gusts import gust_factor, mean_wind_nwu
@@ -52,15 +54,18 @@ def attitude_target(t_us: int, att_cmd_flu_rad: tuple[float, float, float]) -> M
     return mavlink2.MAVLink_attitude_target_message(t_us // 1000, mask, q, 0.0, 0.0, 0.0, 0.0)
 
 
-def wind_cov(t_us: int, world: World) -> Message:
-    """The air the world has at vehicle time ``t_us`` without its turbulence (steady wind +
-    gust), NED; the variances are the Dryden ones' vertical intensity, sigma_w^2 =
-    (0.1 W20)^2 (horizontal at least that: the exact value depends on height), 0 in calm."""
-    t_s = t_us / 1e6
-    w, g = world.wind, world.gust
-    air = mean_wind_nwu(w.speed_m_s, w.from_deg, w.elevation_deg)
-    k = gust_factor(t_s, g.start_s, g.rise_s, math.inf if g.hold_s < 0.0 else g.hold_s, g.fall_s)
-    air = air + k * mean_wind_nwu(g.amplitude_m_s, g.from_deg, g.elevation_deg)
+def wind_cov(t_us: int, world: World, air_nwu_m_s: tuple[float, float, float] | None = None) -> Message:
+    """The air at vehicle time ``t_us``, NED: the plant's (turbulence included) where it
+    reports it, else the world's steady wind + gust. The variances are the Dryden vertical
+    intensity's, sigma_w^2 = (0.1 W20)^2 (the horizontal is at least that), 0 in calm."""
+    if air_nwu_m_s is None:
+        w, g = world.wind, world.gust
+        t_s = t_us / 1e6
+        k = gust_factor(t_s, g.start_s, g.rise_s, math.inf if g.hold_s < 0.0 else g.hold_s, g.fall_s)
+        air = mean_wind_nwu(w.speed_m_s, w.from_deg, w.elevation_deg) + k * mean_wind_nwu(
+            g.amplitude_m_s, g.from_deg, g.elevation_deg)  # fmt: skip
+    else:
+        air = np.asarray(air_nwu_m_s)
     n, e, d = frames.nwu_to_ned(air)
     var = (0.1 * world.turbulence.w20_m_s) ** 2
     return mavlink2.MAVLink_wind_cov_message(t_us, n, e, d, var, var, math.nan, math.nan, math.nan)

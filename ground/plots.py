@@ -114,7 +114,6 @@ def _tracking_panels(
 
 
 WORLD_FIGURE = "fig10_world.png"
-WORLD_CSV_HEADER = ("t", "air_n", "air_w", "air_u", "theta_m_pos", "theta_t_pos", "eps_pos", "eta_pos")
 
 
 def plot_world(
@@ -146,13 +145,3 @@ def plot_world(
     plt.close(fig)
     return path
 
-
-Array = npt.NDArray[np.float64]
-
-
-def write_world_csv(path: Path, t: Array, air_nwu_m_s: Array, reached: Array) -> None:
-    """world.csv: per tick, the air velocity (NWU, m/s) and the pitches the servos reached (rad)."""
-    rows = np.column_stack([t, air_nwu_m_s, reached])
-    with path.open("w", newline="") as fh:
-        csv.writer(fh).writerow(WORLD_CSV_HEADER)
-        fh.write("".join(",".join(f"{v:.9g}" for v in r) + "\r\n" for r in rows.tolist()))

@@ -28,7 +28,7 @@ def _simulate(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from autopilot.scenario import Scenario
-    from ground.plots import plot_figures, plot_world, write_world_csv
+    from ground.plots import plot_figures, plot_world
     from heli_sitl.closed_loop import SimOptions, simulate
 
     scenario = Scenario.load(args.scenario)
@@ -57,7 +57,7 @@ def _simulate(args: argparse.Namespace) -> int:
     if record.air_nwu_m_s is not None and record.servo_rad is not None:
         figs.append(plot_world(record.t_s, record.air_nwu_m_s, record.pitches, record.servo_rad, out,
                                title=f"{title}, world {opts.world.name if opts.world else ''}"))  # fmt: skip
-        write_world_csv(out / "world.csv", record.t_s, record.air_nwu_m_s, record.servo_rad)
+        record.write_world_csv(out / "world.csv")
         figs.append(out / "world.csv")
     rms = summary["rms_pos_err_m"]
     print("RMS 3-D position error: " + ", ".join(f"[{k}] s {v:.4f} m" for k, v in rms.items()))
@@ -151,7 +151,10 @@ def _up(args: argparse.Namespace) -> int:
 
 
 def _demo(args: argparse.Namespace) -> int:
-    from ground.plots import plot_figures, read_csv_columns
+    import numpy as np
+
+    from autopilot.metrics import PITCH_KEYS
+    from ground.plots import plot_figures, plot_world, read_csv_columns
     from heli_common.process import terminate_on_sigterm
     from heli_sitl.demo import DemoError, DemoOptions, run_demo
 
@@ -166,7 +169,15 @@ def _demo(args: argparse.Namespace) -> int:
     except DemoError as exc:
         print(f"heli-sitl demo: {exc}", file=sys.stderr)
         return 1
-    figs = plot_figures(read_csv_columns(out / "run.csv"), out, title=f"{args.mode} {args.rate_hz:g} Hz")
+    cols = read_csv_columns(out / "run.csv")
+    figs = plot_figures(cols, out, title=f"{args.mode} {args.rate_hz:g} Hz")
+    if (out / "world.csv").is_file():  # the plant flew a world: the air and the servos it reported
+        w = read_csv_columns(out / "world.csv")
+        air = np.column_stack([w["air_n"], w["air_w"], w["air_u"]])
+        reached = np.column_stack([w[f"{k}_pos"] for k in PITCH_KEYS])
+        commanded = np.column_stack([cols[k] for k in PITCH_KEYS])
+        title = f"{args.mode}, world {args.world}"
+        figs.append(plot_world(w["t"], air, commanded, reached, out, title=title))
     rms = summary["rms_pos_err_m"]
     assert isinstance(rms, dict)
     print("RMS 3-D position error: " + ", ".join(f"[{k}] s {v:.4f} m" for k, v in rms.items()))

@@ -89,8 +89,9 @@ def _run_ticks(
                 x, _ = world_plant_step(
                     t[i], x, held, c, air, dt, n_sub, True, wp, ws, servo_p, servo_s, dryden
                 )
-                airs[i] = ws[WS_AIR : WS_AIR + 3]
-                applied[i] = ws[WS_PITCH : WS_PITCH + N_PITCH]
+                # the truth of the hold that led to the next state, as the plant reports it
+                airs[i + 1] = ws[WS_AIR : WS_AIR + 3]
+                applied[i + 1] = ws[WS_PITCH : WS_PITCH + N_PITCH]
             else:
                 x, _ = plant_step(t[i], x, held, c, dt, n_sub, True)
     return x
@@ -117,8 +118,8 @@ def simulate(
     xs = np.empty((n + 1, plant.x.size))
     us = np.empty((n + 1, N_PITCH))
     diags = np.empty((n + 1, N_DIAG))
-    airs = np.zeros((n + 1, 3))
-    applied = np.empty((n + 1, N_PITCH))
+    airs = np.full((n + 1, 3), np.nan)  # row 0: no hold before the first state
+    applied = np.full((n + 1, N_PITCH), np.nan)
     x = plant.x
     w = plant.world or CALM_ARRAYS
     if plant.world is not None:
@@ -153,8 +154,6 @@ def simulate(
         extra["world"] = plant.world.world.describe(scenario.airframe)
     rec = FlightRecord.from_ticks(t, xs, refs, us, diags, wall, extra)
     if plant.world is not None:
-        applied[n] = applied[n - 1] if n > 0 else plant.u
-        airs[n] = airs[n - 1] if n > 0 else 0.0
         rec = dataclasses.replace(rec, air_nwu_m_s=airs, servo_rad=applied)
     return rec
 

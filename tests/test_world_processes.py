@@ -36,6 +36,15 @@ def test_lockstep_flies_the_in_process_flight_in_the_same_world(tmp_path: Path, 
     assert rms <= tol_m, f"lockstep vs in-process RMS {rms:.2e} m"
     world = summary["world"]
     assert isinstance(world, dict) and world["name"] == preset
+    # the plant reports the world's truth with each state: the same air and servo positions
+    # as in-process (float32 on the wire), NaN for the state before the first hold
+    w = read_csv_columns(tmp_path / "world.csv")
+    assert rec.air_nwu_m_s is not None and rec.servo_rad is not None
+    air = np.column_stack([w["air_n"], w["air_w"], w["air_u"]])
+    servo = np.column_stack([w[f"{k}_pos"] for k in ("theta_m", "theta_t", "eps", "eta")])
+    assert np.isnan(air[0]).all() and np.isnan(rec.air_nwu_m_s[0]).all()
+    np.testing.assert_allclose(air[1:], rec.air_nwu_m_s[1:], atol=1e-5 + 10 * tol_m)
+    np.testing.assert_allclose(servo[1:], rec.servo_rad[1:], atol=1e-5 + tol_m)
 
 
 HOVER_SCENARIO = """
@@ -94,14 +103,23 @@ def test_a_live_sim_wind_change_reaches_the_plant_and_the_log(tmp_path: Path) ->
         while flight.is_alive():
             gc.spin(0.2)
     flight.join()
-    # the log: WIND_COV before and after, and the PARAM_VALUE of the change
+    # the log: the PARAM_VALUE of the change, and WIND_COV (the plant's air at the vehicle,
+    # turbulence included) around 3 m/s before it and 9 m/s after it
     from ground.log import read_tlog
 
-    winds = [(m.time_usec / 1e6, math.hypot(m.wind_x, m.wind_y)) for _, m in read_tlog(tlog_path)
-             if m.get_type() == "WIND_COV"]  # fmt: skip
-    speeds = {round(s, 3) for _, s in winds}
-    assert 3.0 in speeds and 9.0 in speeds, speeds
-    t_change = min(t for t, s in winds if s > 8.9)
+    log = [m for _, m in read_tlog(tlog_path)]
+    i_set = next(i for i, m in enumerate(log) if m.get_type() == "PARAM_VALUE"
+                 and m.param_id == "SIM_WIND_SPD" and m.param_value == 9.0)  # fmt: skip
+    # the wind comes from the west: it blows east (NED y). Its turbulence is correlated over
+    # L_u/V of 20 s and more, so the step between the two windows is the change, 6 m/s
+    winds = [(i, m.time_usec / 1e6, m.wind_y) for i, m in enumerate(log)
+             if m.get_type() == "WIND_COV" and math.isfinite(m.wind_x)]  # fmt: skip
+    before = [w for i, _, w in winds if i < i_set][-6:]
+    after = [w for i, _, w in winds if i > i_set][:6]
+    t_change = min(t for i, t, _ in winds if i > i_set)
+    print(f"WIND_COV east: {np.mean(before):.2f} m/s before the change, {np.mean(after):.2f} after")
+    assert np.mean(after) - np.mean(before) == pytest.approx(6.0, abs=1.0)
+    assert any(m.get_type() == "ACTUATOR_OUTPUT_STATUS" for m in log)  # the servo positions too
     # the plant: the vehicle leans into the stronger wind, at least by what the added
     # fuselage drag alone needs, (rho/2)(9^2 - 3^2) S_x / (m g) = 0.055 rad (the rotors'
     # inflow in the edgewise flow adds to it)

@@ -37,6 +37,7 @@ from heli_common.geo import GeoPoint, nwu_to_geo
 from heli_common.kinematics import rot_body_to_earth
 from heli_common.mavlink import modes as wm
 from heli_common.mavlink.mission_items import MissionItem
+from heli_common.mavlink.sim_protocol import StateSample
 from heli_common.mavlink.udp import LOOPBACK, Address, MavlinkUdp, Message, mavlink2
 from heli_common.ratelog import RateLimitedLog
 from heli_common.state import EULER, POS, VEL, FloatArray
@@ -84,6 +85,7 @@ DEFAULT_RATES_HZ: dict[int, float] = {
     m2.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED: 10.0,
     m2.MAVLINK_MSG_ID_ATTITUDE_TARGET: 10.0,
     m2.MAVLINK_MSG_ID_WIND_COV: 2.0,
+    m2.MAVLINK_MSG_ID_ACTUATOR_OUTPUT_STATUS: 10.0,  # servo positions, where a world reports them
     m2.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW: 10.0,
     m2.MAVLINK_MSG_ID_MISSION_CURRENT: 1.0,
     m2.MAVLINK_MSG_ID_VFR_HUD: 4.0,
@@ -185,6 +187,8 @@ class GcsService:
         self._att_cmd: Euler = (0.0, 0.0, 0.0)
         self._broken: set[int] = set()
         self._armed_sent = False
+        # the world's truth of the latest tick (set by whoever runs the loop; None: none)
+        self.truth: Callable[[], StateSample | None] | None = None
         self._errors = RateLimitedLog(log, interval_s=10.0)
         self.handler_errors = 0
         self._pending: list[_Pending] = []
@@ -359,7 +363,14 @@ class GcsService:
                 return None
             return telemetry.attitude_target(t_us, self._att_cmd)
         if msg_id == m2.MAVLINK_MSG_ID_WIND_COV:
-            return telemetry.wind_cov(t_us, self.params.world())
+            sample = self.truth() if self.truth is not None else None
+            air = sample.air_nwu_m_s if sample is not None else None
+            return telemetry.wind_cov(t_us, self.params.world(), air)
+        if msg_id == m2.MAVLINK_MSG_ID_ACTUATOR_OUTPUT_STATUS:
+            sample = self.truth() if self.truth is not None else None
+            if sample is None or sample.servo_rad is None:
+                return None
+            return m2.MAVLink_actuator_output_status_message(t_us, 0xF, [*sample.servo_rad] + [0.0] * 28)
         if msg_id == m2.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW:
             return telemetry.servo_output(t_us, self._u, self.limits)
         if msg_id == m2.MAVLINK_MSG_ID_MISSION_CURRENT:

@@ -21,6 +21,8 @@ the MAVLink generator orders them) come from pymavlink 2.4.50's ``common`` diale
     LOCAL_POSITION_NED   (32,  CRC_EXTRA 185): <Iffffff             28 bytes
     HIL_ACTUATOR_CONTROLS(93,  CRC_EXTRA 47):  <QQ16fB              81 bytes
     PARAM_SET            (23,  CRC_EXTRA 168): <fBB16sB            23 bytes (world settings, rare)
+    WIND_COV             (231, CRC_EXTRA 105): <Qffffffff          40 bytes (the world's air)
+    ACTUATOR_OUTPUT_STATUS(375, CRC_EXTRA 251): <QI32f            140 bytes (servo positions)
 
 Decoding walks a datagram frame by frame and never raises: frames with a bad CRC, a
 declared length running past the datagram, or an unknown message id are counted and
@@ -56,12 +58,16 @@ MSG_ID_LOCAL_POSITION_NED: Final = 32
 MSG_ID_HIL_ACTUATOR_CONTROLS: Final = 93
 MSG_ID_HIL_STATE_QUATERNION: Final = 115
 MSG_ID_PARAM_SET: Final = 23
+MSG_ID_WIND_COV: Final = 231
+MSG_ID_ACTUATOR_OUTPUT_STATUS: Final = 375
 
 _CRC_EXTRA_ATT: Final = 39
 _CRC_EXTRA_LPN: Final = 185
 _CRC_EXTRA_ACT: Final = 47
 _CRC_EXTRA_HIL: Final = 4
 _CRC_EXTRA_PARAM_SET: Final = 168
+_CRC_EXTRA_WIND_COV: Final = 105
+_CRC_EXTRA_AOS: Final = 251
 # msgid -> CRC_EXTRA, the per-message seed that makes a layout change fail the CRC
 _CRC_EXTRA: Final[dict[int, int]] = {
     MSG_ID_ATTITUDE: _CRC_EXTRA_ATT,
@@ -69,6 +75,8 @@ _CRC_EXTRA: Final[dict[int, int]] = {
     MSG_ID_HIL_ACTUATOR_CONTROLS: _CRC_EXTRA_ACT,
     MSG_ID_HIL_STATE_QUATERNION: _CRC_EXTRA_HIL,
     MSG_ID_PARAM_SET: _CRC_EXTRA_PARAM_SET,
+    MSG_ID_WIND_COV: _CRC_EXTRA_WIND_COV,
+    MSG_ID_ACTUATOR_OUTPUT_STATUS: _CRC_EXTRA_AOS,
 }
 
 _STX_V2: Final = 0xFD
@@ -84,6 +92,8 @@ _ATT: Final = struct.Struct("<Iffffff")
 _LPN: Final = _ATT  # same layout, kept apart by name for readability
 _ACT: Final = struct.Struct("<QQ16fB")
 _PSET: Final = struct.Struct("<fBB16sB")
+_WCOV: Final = struct.Struct("<Qffffffff")
+_AOS: Final = struct.Struct("<QI32f")
 # after the magic byte: len, incompat, compat, seq, sysid, compid, msgid low 16, msgid high 8
 _HDR: Final = struct.Struct("<BBBBBBHB")
 _U16: Final = struct.Struct("<H")
@@ -92,6 +102,8 @@ _SIZE_ATT: Final = _ATT.size
 _SIZE_LPN: Final = _LPN.size
 _SIZE_ACT: Final = _ACT.size
 _SIZE_PSET: Final = _PSET.size
+_SIZE_WCOV: Final = _WCOV.size
+_SIZE_AOS: Final = _AOS.size
 
 
 def _crc_table() -> tuple[int, ...]:
@@ -221,12 +233,40 @@ class ParamSet(NamedTuple):
         return "PARAM_SET"
 
 
-Decoded: TypeAlias = HilStateQuaternion | Attitude | LocalPositionNed | HilActuatorControls | ParamSet
+class WindCov(NamedTuple):
+    msgid: int
+    sysid: int
+    compid: int
+    seq: int
+    time_usec: int
+    wind_ned_m_s: tuple[float, float, float]
+
+    def get_type(self) -> str:
+        return "WIND_COV"
+
+
+class ActuatorOutputStatus(NamedTuple):
+    msgid: int
+    sysid: int
+    compid: int
+    seq: int
+    time_usec: int
+    active: int
+    actuator: tuple[float, ...]  # 32
+
+    def get_type(self) -> str:
+        return "ACTUATOR_OUTPUT_STATUS"
+
+
+Decoded: TypeAlias = (
+    HilStateQuaternion | Attitude | LocalPositionNed | HilActuatorControls | ParamSet | WindCov
+    | ActuatorOutputStatus
+)
 
 # tuple.__new__ skips the NamedTuple's generated Python __new__ (half the cost of a result)
 _new = tuple.__new__
 # zero padding for MAVLink 2 truncated payloads, indexed by the number of missing bytes
-_PAD: Final[tuple[bytes, ...]] = tuple(bytes(k) for k in range(max(_SIZE_HIL, _SIZE_ACT) + 1))
+_PAD: Final[tuple[bytes, ...]] = tuple(bytes(k) for k in range(max(_SIZE_HIL, _SIZE_ACT, _SIZE_AOS) + 1))
 
 
 def hil_alt_vel(pos_ned_m: Iterable[float], vel_ned_m_s: Iterable[float]) -> tuple[int, tuple[int, int, int]]:
@@ -417,6 +457,21 @@ class SimCodec:
                                             (msgid, sysid, compid, seq, t[0], t[1:5]) + t[5:],
                                         )
                                     )
+                                elif msgid == MSG_ID_WIND_COV:
+                                    t = (
+                                        _WCOV.unpack_from(data, p0)
+                                        if n >= _SIZE_WCOV
+                                        else _WCOV.unpack(data[p0:pend] + _PAD[_SIZE_WCOV - n])
+                                    )
+                                    out.append(_new(WindCov, (msgid, sysid, compid, seq, t[0], t[1:4])))
+                                elif msgid == MSG_ID_ACTUATOR_OUTPUT_STATUS:
+                                    t = (
+                                        _AOS.unpack_from(data, p0)
+                                        if n >= _SIZE_AOS
+                                        else _AOS.unpack(data[p0:pend] + _PAD[_SIZE_AOS - n])
+                                    )
+                                    t = (msgid, sysid, compid, seq, t[0], t[1], t[2:])
+                                    out.append(_new(ActuatorOutputStatus, t))
                                 elif msgid == MSG_ID_PARAM_SET:
                                     v, ts, tc, pid, ptype = (
                                         _PSET.unpack_from(data, p0)

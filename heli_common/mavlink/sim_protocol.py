@@ -82,6 +82,10 @@ class StateSample:
     t_us: int
     x: FloatArray  # NWU/FLU plant state layout
     session: int = 0  # bumps when the plant's clock restarts (a restarted plant)
+    # a plant flying a world adds the truth the flight log shows (None in the ideal world):
+    # the air at the vehicle (earth NWU, m/s) and the pitches the servos reached (rad)
+    air_nwu_m_s: tuple[float, float, float] | None = None
+    servo_rad: tuple[float, float, float, float] | None = None
 
 
 # What a state may hold: anything else is a corrupted or hostile datagram, never a vehicle.

@@ -11,11 +11,13 @@ from __future__ import annotations
 
 import gc
 import logging
+import math
 import threading
 import time
 from dataclasses import dataclass, field
 from typing import Any
 
+from heli_common import frames
 from heli_common.links import ServoCommand, ServoInput
 from heli_common.mavlink.fast import ParamSet, SimCodec
 from heli_common.mavlink.sim_protocol import (
@@ -23,7 +25,7 @@ from heli_common.mavlink.sim_protocol import (
     period_us,
     receive,
 )
-from heli_common.mavlink.udp import MavlinkUdp
+from heli_common.mavlink.udp import MavlinkUdp, mavlink2
 from heli_common.servo_map import limits_array
 from heli_sitl.plant.model import Plant
 from heli_sitl.plant.servo_inputs import MavlinkServoInput
@@ -88,8 +90,31 @@ class PlantServer:
         self._waiting_for_arm = cfg.hold_until_armed
 
     def _publish(self) -> None:
-        self.link.send_bytes(encode_state(self.codec, self.t_us, self.plant.x))
-        self.link.stats.tx_messages += 3
+        data = encode_state(self.codec, self.t_us, self.plant.x)
+        n = 3
+        if self.plant.world is not None:
+            data += self._world_truth()
+            n += 2
+        self.link.send_bytes(data)
+        self.link.stats.tx_messages += n
+
+    def _world_truth(self) -> bytes:
+        """In a world, the state's datagram also carries what the autopilot cannot measure
+        and the flight log shows: the air at the vehicle (WIND_COV, NED, turbulence
+        included) and the blade pitches the servos reached (ACTUATOR_OUTPUT_STATUS [rad]),
+        both of the hold that led to this state (NaN before the first)."""
+        w = self.plant.world
+        assert w is not None
+        nan = math.nan
+        if w.h_s == 0.0:  # no hold yet: nothing to report of the air or the servos
+            n = e = d = nan
+            servo = [nan] * 4 + [0.0] * 28
+        else:
+            n, e, d = frames.nwu_to_ned(w.air_nwu_m_s)
+            servo = [float(v) for v in w.pitches_rad] + [0.0] * 28
+        air = mavlink2.MAVLink_wind_cov_message(self.t_us, n, e, d, nan, nan, nan, nan, nan)
+        pitches = mavlink2.MAVLink_actuator_output_status_message(self.t_us, 0xF, servo)
+        return self.link.pack(air) + self.link.pack(pitches)
 
     def _end_reached(self) -> bool:
         """Stepped past the end (the state at t = duration is published and answered)."""
