@@ -45,6 +45,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="heli-autopilot", description=__doc__)
     p.add_argument("--mode", choices=("lockstep", "realtime"), default="realtime")
     p.add_argument("--scenario", default="paper", help="airframe, gains and trajectory source")
+    p.add_argument("--gains", default=None, metavar="FILE",
+                   help="the gain set instead of the scenario's (gains_servo_aware.toml for real servos)")
     p.add_argument("--rate-hz", type=arg.control_rate_hz, default=None, help="control rate (50-1000 Hz)")
     p.add_argument("--feedforward", choices=("pseudo", "exact"), default=None)
     p.add_argument("--duration-s", type=arg.positive, default=None, help="stop after this flight time")
@@ -136,7 +138,7 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
     arg.resolve_instance(args, AUTOPILOT_PORTS)
     if args.port == args.plant_port:  # it would only hear its own commands
         raise UsageError(f"--port and --plant-port must differ (both {args.port})")
-    sc = Scenario.load(args.scenario)
+    sc = Scenario.load(args.scenario, gains=args.gains)
     rate = args.rate_hz or sc.run.rate_hz
     ctrl = TLController(sc.airframe, sc.gains, rate, args.feedforward or sc.run.feedforward)
     limits = limits_array(sc.airframe.limits.as_tuple())
@@ -180,7 +182,7 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
         out.mkdir(parents=True, exist_ok=True)
         record = recorder.record(runner.wall_s, {
             "scenario": sc.run.name if manager.flew_duration(sc.run.duration_s) else None,
-            "mode": args.mode, "rate_hz": rate, "feedforward": ctrl.feedforward.value,
+            "mode": args.mode, "rate_hz": rate, "feedforward": ctrl.feedforward.value, "gains": sc.gains.name,
             "summary_end_s": args.summary_end_s,
             "loop": stats.summary(), "sim_link": link,
             "gcs_link": gcs.stats() if gcs is not None else None,

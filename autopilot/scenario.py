@@ -39,8 +39,9 @@ class Scenario:
         return Feedforward(self.run.feedforward)
 
     @classmethod
-    def load(cls, name_or_path: str | Path) -> Scenario:
-        """Load ``configs/scenario_<name>.toml`` (or a path) and the files it names."""
+    def load(cls, name_or_path: str | Path, gains: str | Path | None = None) -> Scenario:
+        """Load ``configs/scenario_<name>.toml`` (or a path) and the files it names;
+        ``gains`` (a file, or a name in configs/) replaces the scenario's gain set."""
         path, table = read_toml(scenario_path(name_or_path))
         src = str(path)
         for key in ("run", "trajectory", "initial_state"):
@@ -56,7 +57,7 @@ class Scenario:
         return cls(
             run=run,
             airframe=Airframe.load(base / run.airframe),
-            gains=Gains.load(base / run.gains),
+            gains=Gains.load(base / run.gains if gains is None else gains),
             trajectory=trajectory_from_table(table["trajectory"], src),
             initial=build(InitialState, table["initial_state"], f"{src}: initial_state"),
             source=path,

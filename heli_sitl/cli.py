@@ -17,6 +17,8 @@ from heli_common.process import UsageError, run_main
 from heli_common.servo_link import add_servo_args
 from heli_common.world import World
 
+GAINS_HELP = ("the controller's gain set instead of the scenario's (configs/: gains_paper.toml, "
+              "gains_servo_aware.toml for real servos, see docs/servo-aware-gains.md)")
 WORLD_HELP = ("the world around the vehicle: a TOML file or a preset of configs/world/ (calm, breezy, "
               "gusty, servos-default, sloppy-servos, heavy-10pct, everything); default: the paper's "
               "ideal world (no air, ideal servos, the design airframe)")
@@ -31,7 +33,7 @@ def _simulate(args: argparse.Namespace) -> int:
     from ground.plots import plot_figures, plot_world
     from heli_sitl.closed_loop import SimOptions, simulate
 
-    scenario = Scenario.load(args.scenario)
+    scenario = Scenario.load(args.scenario, gains=args.gains)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     opts = SimOptions(
@@ -163,7 +165,8 @@ def _demo(args: argparse.Namespace) -> int:
     out = Path(args.out)
     opts = DemoOptions(mode=args.mode, rate_hz=args.rate_hz, scenario=args.scenario, out=out,
                        duration_s=args.duration_s, servo_link=args.servo_link,
-                       can_bus=args.can_bus, via_ground=not args.autostart, world=args.world)  # fmt: skip
+                       can_bus=args.can_bus, via_ground=not args.autostart, world=args.world,
+                       extra_autopilot_args=("--gains", args.gains) if args.gains else ())  # fmt: skip
     try:
         summary = run_demo(opts)
     except DemoError as exc:
@@ -207,6 +210,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", required=True, help="output directory")
     s.add_argument("--quiet", action="store_true", help="no progress bar")
     s.add_argument("--world", default=None, metavar="FILE|PRESET", help=WORLD_HELP)
+    s.add_argument("--gains", default=None, metavar="FILE", help=GAINS_HELP)
     s.set_defaults(func=_simulate)
 
     r = sub.add_parser("run", help="the plant process (sim link on UDP loopback)")
@@ -261,6 +265,7 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--can-bus", default=None, help="python-can bus spec for --servo-link can")
     d.add_argument("--out", required=True)
     d.add_argument("--world", default=None, metavar="FILE|PRESET", help=WORLD_HELP)
+    d.add_argument("--gains", default=None, metavar="FILE", help=GAINS_HELP)
     d.set_defaults(func=_demo)
     return p
 

@@ -148,7 +148,7 @@ def simulate(
     wall = time.perf_counter() - wall0
     extra: dict[str, object] = {
         "scenario": run.name, "rate_hz": rate_hz, "feedforward": ctrl.feedforward.value,
-        "plant_substeps": plant.substeps,
+        "plant_substeps": plant.substeps, "gains": scenario.gains.name,
     }  # fmt: skip
     if plant.world is not None:
         extra["world"] = plant.world.world.describe(scenario.airframe)

@@ -172,7 +172,7 @@ def test_simulate_shows_the_world(tmp_path: object) -> None:
 
     out = Path(str(tmp_path)) / "out"
     assert cli.main(["simulate", "--world", "servos-default", "--duration-s", "5", "--quiet",
-                     "--out", str(out)]) == 0  # fmt: skip
+                     "--gains", "gains_servo_aware.toml", "--out", str(out)]) == 0  # fmt: skip
     assert (out / "fig10_world.png").stat().st_size > 10_000
     with (out / "world.csv").open() as fh:
         rows = list(csv.reader(fh))
@@ -185,6 +185,7 @@ def test_simulate_shows_the_world(tmp_path: object) -> None:
     summary = json.loads((out / "summary.json").read_text())
     assert summary["world"]["name"] == "servos-default"
     assert summary["world"]["servos"]["delay_s"] == [0.01] * 4
+    assert summary["gains"] == "servo-aware"
     assert cli.main(["simulate", "--world", "nosuchworld", "--out", str(out)]) == 2
 
 
