@@ -199,6 +199,7 @@ class ParamTable:
     ) -> None:
         self._gains = gains
         self._world = world or World()
+        self._world_now, self._world_at = self._world, 0
         self._pitch = pitch_limits
         self._failsafe = failsafe or FailsafeTimeouts()
         self.system_id = system_id
@@ -333,11 +334,14 @@ class ParamTable:
         return self._values["TLC_RATE_HZ"]
 
     def world(self) -> World:
-        """The world the SIM_ parameters describe (the loaded one with the table's values)."""
-        w = self._world
-        for p in SIM_PARAMS:
-            w = with_sim_param(w, p.name, self._values[p.name])
-        return w
+        """The world the SIM_ parameters describe (the loaded one with the table's values);
+        rebuilt only after a change (telemetry asks for it twice a second)."""
+        if self._world_at != self.generation:
+            w = self._world
+            for p in SIM_PARAMS:
+                w = with_sim_param(w, p.name, self._values[p.name])
+            self._world_now, self._world_at = w, self.generation
+        return self._world_now
 
     def sim_values(self) -> dict[str, float]:
         return {p.name: self._values[p.name] for p in SIM_PARAMS}
