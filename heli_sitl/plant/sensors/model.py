@@ -1,0 +1,734 @@
+"""Sensor models in the plant's step (compiled): IMU, GPS, attitude source, barometer.
+
+:class:`SensorModel` turns a configured :class:`heli_common.sensors.Sensors` into three flat
+float64 arrays (named offsets below) and :func:`sensor_step` is called once per plant step
+with the true state ``x`` at time ``t_s`` and the true acceleration of the c.g. in the earth
+frame at that time. It returns a bit mask of the samples that are new this step and writes
+them into ``out``, which always holds the latest sample of each sensor.
+
+The caller's acceleration: ``a_earth`` is ``d/dt (R v_body)``, earth NWU [m/s^2], gravity
+*not* included (at rest it is zero). The exact value at ``t_s`` comes from the dynamics
+derivative, :func:`earth_accel_from_derivative` (``R (dv_body/dt + omega x v_body)``); a
+finite difference of two states, :func:`earth_accel_from_states`, is the mean over the step
+(exact at the step's midpoint) and is acceptable where the derivative is not at hand.
+:func:`specific_force_flu` is what a perfect accelerometer reads, ``R^T (a_earth - g_earth)``
+with ``g_earth = (0, 0, -g)``: ``(0, 0, +g)`` at rest and level.
+
+Per sensor (details and sources in docs/sensors.md):
+
+* Schedule: sample number ``k`` is due at ``k / rate`` (vehicle time); it is taken at the
+  first plant step at or after that time (within ``SNP_TOL_S``), with the state of that
+  step, and valid at the step's time. Timing never drifts (jitter is below one step). A rate
+  of 0 in the parameters (a sensor that is off) samples at every step.
+* White noise: a per-sample standard deviation; for a density ``N`` it is ``N sqrt(rate)``
+  (the two-sided PSD of the sampled sequence is then ``N^2``).
+* Bias random walk (IMU): ``b += K sqrt(dt) eta`` per sample, ``dt`` the time since the
+  sensor's previous sample, on top of the constant initial bias.
+* GPS wander: first-order Gauss-Markov per axis, discretised exactly for the actual sample
+  interval, ``z = a z + sqrt(1 - a^2) eta``, ``a = exp(-dt/tau)``, run normalised (unit
+  variance, stationary from its first sample) and scaled by the configured sigma.
+* Latency (GPS, attitude): each sample enters a FIFO with its validity time and is delivered
+  at the first step at or after ``t_valid + lag``. At most one per step: if several are
+  ready (only after a lag is shortened live) the newest is delivered, older ones dropped;
+  if the FIFO is full the oldest entry is overwritten (sized so that cannot happen).
+* Baro drift: ``d += rate * dt`` per sample (ArduPilot's SITL_Baro drifts the same way).
+* Failures: from ``fault_start_s`` (compared with the sample's validity time) a step bias is
+  added, and ``freeze`` holds the last output values (new samples keep their times, the
+  values stay); a frozen sensor with no output yet outputs its first sample. GPS
+  ``disabled``: fixes are still taken (the noise processes run on) but none is delivered.
+
+Randomness is counter-based (:mod:`heli_sitl.plant.world.noise`): each process draws from
+its own stream id (>= ``STREAM_SENSOR_BASE``, never the world's) at its sensor's sample
+count, so the same seed and the same sequence of calls give the same samples in any process
+(and under ``NUMBA_DISABLE_JIT=1``). With every error term zero no arithmetic but ``+ 0.0``
+touches the truth: a sensor that is off reads the truth exactly.
+
+Parameters (``params[SNP_*]``, float64, built by :func:`sensor_parameters`)::
+
+    SNP_SEED, SNP_TOL_S, SNP_GRAVITY         seed (exact below 2^53), timing tolerance [s], g
+    SNP_IMU_RATE_HZ                          0: every step
+    SNP_GYRO_SIGMA, SNP_ACCEL_SIGMA          white std per sample [rad/s], [m/s^2]
+    SNP_GYRO_BIAS (3), SNP_ACCEL_BIAS (3)    constant bias
+    SNP_GYRO_WALK, SNP_ACCEL_WALK            random-walk intensity K [unit/sqrt(s)]
+    SNP_IMU_FREEZE, SNP_IMU_FAULT_T          0/1, fault start [s]
+    SNP_GYRO_STEP (3), SNP_ACCEL_STEP (3)    step bias from the fault start
+    SNP_GPS_RATE_HZ, SNP_GPS_LAG_S
+    SNP_GPS_SIGMA_H, SNP_GPS_SIGMA_V         white position std per fix [m]
+    SNP_GPS_WANDER_H, SNP_GPS_WANDER_V       Gauss-Markov sigma [m]
+    SNP_GPS_TAU_S                            Gauss-Markov time constant
+    SNP_GPS_VEL_SIGMA                        white velocity std per fix [m/s]
+    SNP_GPS_DISABLED, SNP_GPS_FREEZE, SNP_GPS_FAULT_T, SNP_GPS_STEP (3)
+    SNP_GPS_QUEUE, SNP_GPS_QUEUE_CAP         state offset and slots of the GPS FIFO
+    SNP_ATT_RATE_HZ, SNP_ATT_LAG_S, SNP_ATT_SIGMA (3), SNP_ATT_BIAS (3)
+    SNP_ATT_FREEZE, SNP_ATT_FAULT_T, SNP_ATT_STEP (3), SNP_ATT_QUEUE, SNP_ATT_QUEUE_CAP
+    SNP_BARO_RATE_HZ, SNP_BARO_SIGMA, SNP_BARO_DRIFT, SNP_BARO_FREEZE, SNP_BARO_FAULT_T,
+    SNP_BARO_STEP
+
+State (``state[SNS_*]``, float64, :func:`sensor_state`), per sensor ``NEXT`` (index of the
+next due sample, -1: schedule from the next call), ``LAST_T`` (time of the last sample, NaN
+before the first), ``N`` (samples taken: the noise counter), ``OUT`` (samples output)::
+
+    SNS_GYRO_WALK (3), SNS_ACCEL_WALK (3)    bias random-walk parts
+    SNS_GPS_WANDER (3), SNS_GPS_WANDER_ON    normalised Gauss-Markov state, 1 once started
+    SNS_GPS_HEAD, SNS_GPS_COUNT              FIFO ring: oldest slot, entries
+    SNS_ATT_HEAD, SNS_ATT_COUNT
+    SNS_BARO_DRIFT                           accumulated drift [m]
+    state[SNP_GPS_QUEUE + slot * GPS_REC ...]   (t_valid, pos 3, vel 3)
+    state[SNP_ATT_QUEUE + slot * ATT_REC ...]   (t_valid, euler 3)
+
+Output (``out[OUT_*]``, float64, NaN before a sensor's first sample)::
+
+    OUT_IMU_T, OUT_GYRO (3), OUT_ACCEL (3)           body FLU [rad/s], [m/s^2]
+    OUT_GPS_T, OUT_GPS_POS (3), OUT_GPS_VEL (3)      validity time; earth NWU [m], [m/s]
+    OUT_ATT_T, OUT_ATT (3)                           ZYX Euler [rad]
+    OUT_BARO_T, OUT_BARO_ALT                         height above home [m]
+
+and the mask bits ``NEW_IMU``, ``NEW_GPS``, ``NEW_ATT``, ``NEW_BARO``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from heli_common.jit import njit
+from heli_common.kinematics import cross, rot_body_to_earth
+from heli_common.measurements import AttitudeSample, BaroSample, GpsFix, ImuSample
+from heli_common.sensors import Sensors, validate
+from heli_common.state import N_STATE, OMEGA, P_X, PHI, PSI, THETA, U_F, V_L, VEL, W_U, X_N, Z_U, FloatArray
+from heli_sitl.plant.world.noise import STREAM_SENSOR_BASE, normal, normal_pair
+
+# --- stream ids (one per random process; the world owns those below 16) -----------------
+STREAM_GYRO = STREAM_SENSOR_BASE + 0
+STREAM_GYRO_WALK = STREAM_SENSOR_BASE + 1
+STREAM_ACCEL = STREAM_SENSOR_BASE + 2
+STREAM_ACCEL_WALK = STREAM_SENSOR_BASE + 3
+STREAM_GPS_POS = STREAM_SENSOR_BASE + 4
+STREAM_GPS_WANDER = STREAM_SENSOR_BASE + 5
+STREAM_GPS_WANDER_INIT = STREAM_SENSOR_BASE + 6
+STREAM_GPS_VEL = STREAM_SENSOR_BASE + 7
+STREAM_ATT = STREAM_SENSOR_BASE + 8
+STREAM_BARO = STREAM_SENSOR_BASE + 9
+
+# --- mask bits of sensor_step's result ------------------------------------------------------
+NEW_IMU = 1
+NEW_GPS = 2
+NEW_ATT = 4
+NEW_BARO = 8
+
+# --- params[SNP_*] ---------------------------------------------------------------------------
+SNP_SEED = 0
+SNP_TOL_S = 1
+SNP_GRAVITY = 2
+SNP_IMU_RATE_HZ = 3
+SNP_GYRO_SIGMA = 4
+SNP_ACCEL_SIGMA = 5
+SNP_GYRO_BIAS = 6  # 3
+SNP_ACCEL_BIAS = 9  # 3
+SNP_GYRO_WALK = 12
+SNP_ACCEL_WALK = 13
+SNP_IMU_FREEZE = 14
+SNP_IMU_FAULT_T = 15
+SNP_GYRO_STEP = 16  # 3
+SNP_ACCEL_STEP = 19  # 3
+SNP_GPS_RATE_HZ = 22
+SNP_GPS_LAG_S = 23
+SNP_GPS_SIGMA_H = 24
+SNP_GPS_SIGMA_V = 25
+SNP_GPS_WANDER_H = 26
+SNP_GPS_WANDER_V = 27
+SNP_GPS_TAU_S = 28
+SNP_GPS_VEL_SIGMA = 29
+SNP_GPS_DISABLED = 30
+SNP_GPS_FREEZE = 31
+SNP_GPS_FAULT_T = 32
+SNP_GPS_STEP = 33  # 3
+SNP_GPS_QUEUE = 36
+SNP_GPS_QUEUE_CAP = 37
+SNP_ATT_RATE_HZ = 38
+SNP_ATT_LAG_S = 39
+SNP_ATT_SIGMA = 40  # 3
+SNP_ATT_BIAS = 43  # 3
+SNP_ATT_FREEZE = 46
+SNP_ATT_FAULT_T = 47
+SNP_ATT_STEP = 48  # 3
+SNP_ATT_QUEUE = 51
+SNP_ATT_QUEUE_CAP = 52
+SNP_BARO_RATE_HZ = 53
+SNP_BARO_SIGMA = 54
+SNP_BARO_DRIFT = 55
+SNP_BARO_FREEZE = 56
+SNP_BARO_FAULT_T = 57
+SNP_BARO_STEP = 58
+N_SNP = 59
+
+# --- state[SNS_*] ----------------------------------------------------------------------------
+SNS_IMU_NEXT = 0
+SNS_IMU_LAST_T = 1
+SNS_IMU_N = 2
+SNS_IMU_OUT = 3
+SNS_GYRO_WALK = 4  # 3
+SNS_ACCEL_WALK = 7  # 3
+SNS_GPS_NEXT = 10
+SNS_GPS_LAST_T = 11
+SNS_GPS_N = 12
+SNS_GPS_OUT = 13
+SNS_GPS_WANDER = 14  # 3
+SNS_GPS_WANDER_ON = 17
+SNS_GPS_HEAD = 18
+SNS_GPS_COUNT = 19
+SNS_ATT_NEXT = 20
+SNS_ATT_LAST_T = 21
+SNS_ATT_N = 22
+SNS_ATT_OUT = 23
+SNS_ATT_HEAD = 24
+SNS_ATT_COUNT = 25
+SNS_BARO_NEXT = 26
+SNS_BARO_LAST_T = 27
+SNS_BARO_N = 28
+SNS_BARO_OUT = 29
+SNS_BARO_DRIFT = 30
+N_SNS = 31  # the fixed part; the FIFOs follow
+GPS_REC = 7  # t_valid, pos 3, vel 3
+ATT_REC = 4  # t_valid, euler 3
+
+# --- out[OUT_*] ------------------------------------------------------------------------------
+OUT_IMU_T = 0
+OUT_GYRO = 1  # 3
+OUT_ACCEL = 4  # 3
+OUT_GPS_T = 7
+OUT_GPS_POS = 8  # 3
+OUT_GPS_VEL = 11  # 3
+OUT_ATT_T = 14
+OUT_ATT = 15  # 3
+OUT_BARO_T = 18
+OUT_BARO_ALT = 19
+N_OUT = 20
+
+#: timing tolerance as a fraction of the plant step (absorbs a time accumulated by += dt)
+TOL_STEPS = 1e-3
+
+
+# ---------------------------------------------------------------- truth helpers
+
+
+@njit
+def velocity_nwu(x: FloatArray) -> tuple[float, float, float]:
+    """The c.g. velocity in earth NWU, ``R v_body`` [m/s]."""
+    rt = rot_body_to_earth(x[PHI], x[THETA], x[PSI])
+    u, v, w = x[U_F], x[V_L], x[W_U]
+    return (
+        rt[0, 0] * u + rt[0, 1] * v + rt[0, 2] * w,
+        rt[1, 0] * u + rt[1, 1] * v + rt[1, 2] * w,
+        rt[2, 0] * u + rt[2, 1] * v + rt[2, 2] * w,
+    )
+
+
+@njit
+def specific_force_flu(
+    x: FloatArray, accel_earth_nwu: FloatArray, gravity_m_s2: float
+) -> tuple[float, float, float]:
+    """What a perfect accelerometer reads, body FLU: ``R^T (a_earth - g_earth)``,
+    ``g_earth = (0, 0, -g)``; ``(0, 0, +g)`` at rest and level."""
+    rt = rot_body_to_earth(x[PHI], x[THETA], x[PSI])
+    ax, ay, az = accel_earth_nwu[0], accel_earth_nwu[1], accel_earth_nwu[2] + gravity_m_s2
+    return (
+        rt[0, 0] * ax + rt[1, 0] * ay + rt[2, 0] * az,
+        rt[0, 1] * ax + rt[1, 1] * ay + rt[2, 1] * az,
+        rt[0, 2] * ax + rt[1, 2] * ay + rt[2, 2] * az,
+    )
+
+
+@njit
+def earth_accel_from_derivative(x: FloatArray, xdot: FloatArray) -> tuple[float, float, float]:
+    """``a_earth = d/dt (R v) = R (dv/dt + omega x v)`` from the state and its derivative
+    (the plant's ``rigid_body``/``derivative`` output) at the same time [m/s^2, NWU]."""
+    rt = rot_body_to_earth(x[PHI], x[THETA], x[PSI])
+    wxv = cross(x[OMEGA], x[VEL])
+    b0 = xdot[U_F] + wxv[0]
+    b1 = xdot[V_L] + wxv[1]
+    b2 = xdot[W_U] + wxv[2]
+    return (
+        rt[0, 0] * b0 + rt[0, 1] * b1 + rt[0, 2] * b2,
+        rt[1, 0] * b0 + rt[1, 1] * b1 + rt[1, 2] * b2,
+        rt[2, 0] * b0 + rt[2, 1] * b1 + rt[2, 2] * b2,
+    )
+
+
+@njit
+def earth_accel_from_states(x0: FloatArray, x1: FloatArray, dt_s: float) -> tuple[float, float, float]:
+    """The mean earth-frame acceleration over a step, ``(R1 v1 - R0 v0) / dt`` [m/s^2, NWU]:
+    the acceleration at the step's midpoint to O(dt^2), at either end to O(dt)."""
+    a0, a1, a2 = velocity_nwu(x0)
+    b0, b1, b2 = velocity_nwu(x1)
+    return ((b0 - a0) / dt_s, (b1 - a1) / dt_s, (b2 - a2) / dt_s)
+
+
+# ---------------------------------------------------------------- compiled pieces
+
+
+@njit
+def _normal3(seed: int, stream: int, n: int) -> tuple[float, float, float]:
+    """Three independent N(0, 1) deviates for sample ``n`` of ``stream``."""
+    a, b = normal_pair(seed, stream, 2 * n)
+    c, _ = normal_pair(seed, stream, 2 * n + 1)
+    return a, b, c
+
+
+@njit
+def _due(t: float, rate_hz: float, tol: float, state: FloatArray, i_next: int) -> bool:
+    """Whether the sensor samples at ``t``: its next sample time ``k / rate`` is reached
+    (every step for a rate of 0). Advances ``k`` past ``t`` when it does."""
+    if rate_hz <= 0.0:
+        return True
+    k = state[i_next]
+    if k < 0.0:  # first call (or a new rate): the first grid point at or after t
+        k = math.ceil((t - tol) * rate_hz)
+        state[i_next] = k
+    if t >= k / rate_hz - tol:
+        state[i_next] = math.floor((t + tol) * rate_hz) + 1.0
+        return True
+    return False
+
+
+@njit
+def _since(t: float, last: float) -> float:
+    """Time since the sensor's previous sample (0 for the first)."""
+    if math.isnan(last):
+        return 0.0
+    return max(t - last, 0.0)
+
+
+@njit
+def _push_slot(state: FloatArray, cap: int, i_head: int, i_count: int) -> int:
+    """The FIFO slot for a new entry (the oldest one is overwritten when full)."""
+    head = int(state[i_head])
+    count = int(state[i_count])
+    if count >= cap:
+        head = (head + 1) % cap
+        state[i_head] = float(head)
+        count = cap - 1
+    state[i_count] = float(count + 1)
+    return (head + count) % cap
+
+
+@njit
+def _pop_ready(
+    state: FloatArray, base: int, cap: int, width: int, i_head: int, i_count: int, t: float, lag: float,
+    tol: float,
+) -> int:  # fmt: skip
+    """The slot of the newest entry due at ``t`` (``t_valid + lag <= t``), removing it and
+    any older one; -1 if none is due. The slot stays intact until the next push."""
+    head = int(state[i_head])
+    count = int(state[i_count])
+    slot = -1
+    while count > 0 and state[base + head * width] + lag <= t + tol:
+        slot = head
+        head = (head + 1) % cap
+        count -= 1
+    state[i_head] = float(head)
+    state[i_count] = float(count)
+    return slot
+
+
+@njit
+def _imu_sample(
+    t: float, x: FloatArray, a_e: FloatArray, rt: FloatArray, seed: int, p: FloatArray, s: FloatArray,
+    out: FloatArray,
+) -> None:  # fmt: skip
+    n = int(s[SNS_IMU_N])
+    dt = _since(t, s[SNS_IMU_LAST_T])
+    s[SNS_IMU_LAST_T] = t
+    s[SNS_IMU_N] = float(n + 1)
+    kg, ka = p[SNP_GYRO_WALK], p[SNP_ACCEL_WALK]
+    if kg > 0.0 and dt > 0.0:
+        e0, e1, e2 = _normal3(seed, STREAM_GYRO_WALK, n)
+        sd = kg * math.sqrt(dt)
+        s[SNS_GYRO_WALK] += sd * e0
+        s[SNS_GYRO_WALK + 1] += sd * e1
+        s[SNS_GYRO_WALK + 2] += sd * e2
+    if ka > 0.0 and dt > 0.0:
+        e0, e1, e2 = _normal3(seed, STREAM_ACCEL_WALK, n)
+        sd = ka * math.sqrt(dt)
+        s[SNS_ACCEL_WALK] += sd * e0
+        s[SNS_ACCEL_WALK + 1] += sd * e1
+        s[SNS_ACCEL_WALK + 2] += sd * e2
+    sg, sa = p[SNP_GYRO_SIGMA], p[SNP_ACCEL_SIGMA]
+    wg = _normal3(seed, STREAM_GYRO, n) if sg > 0.0 else (0.0, 0.0, 0.0)
+    wa = _normal3(seed, STREAM_ACCEL, n) if sa > 0.0 else (0.0, 0.0, 0.0)
+    out[OUT_IMU_T] = t
+    fault = t >= p[SNP_IMU_FAULT_T]
+    if fault and p[SNP_IMU_FREEZE] != 0.0 and s[SNS_IMU_OUT] > 0.0:
+        s[SNS_IMU_OUT] += 1.0
+        return  # the values stay
+    ax, ay, az = a_e[0], a_e[1], a_e[2] + p[SNP_GRAVITY]
+    for i in range(3):
+        g = x[P_X + i] + p[SNP_GYRO_BIAS + i] + s[SNS_GYRO_WALK + i]
+        f = rt[0, i] * ax + rt[1, i] * ay + rt[2, i] * az + p[SNP_ACCEL_BIAS + i] + s[SNS_ACCEL_WALK + i]
+        if sg > 0.0:
+            g += sg * wg[i]
+        if sa > 0.0:
+            f += sa * wa[i]
+        if fault:
+            g += p[SNP_GYRO_STEP + i]
+            f += p[SNP_ACCEL_STEP + i]
+        out[OUT_GYRO + i] = g
+        out[OUT_ACCEL + i] = f
+    s[SNS_IMU_OUT] += 1.0
+
+
+@njit
+def _gps_sample(t: float, x: FloatArray, seed: int, p: FloatArray, s: FloatArray) -> None:
+    n = int(s[SNS_GPS_N])
+    dt = _since(t, s[SNS_GPS_LAST_T])
+    s[SNS_GPS_LAST_T] = t
+    s[SNS_GPS_N] = float(n + 1)
+    wh, wv = p[SNP_GPS_WANDER_H], p[SNP_GPS_WANDER_V]
+    if wh > 0.0 or wv > 0.0:
+        if s[SNS_GPS_WANDER_ON] == 0.0:  # a stationary start
+            e0, e1, e2 = _normal3(seed, STREAM_GPS_WANDER_INIT, n)
+            s[SNS_GPS_WANDER], s[SNS_GPS_WANDER + 1], s[SNS_GPS_WANDER + 2] = e0, e1, e2
+            s[SNS_GPS_WANDER_ON] = 1.0
+        elif dt > 0.0:
+            r = dt / p[SNP_GPS_TAU_S]
+            a = math.exp(-r)
+            q = math.sqrt(-math.expm1(-2.0 * r))  # sqrt(1 - a^2), accurate for small r
+            e0, e1, e2 = _normal3(seed, STREAM_GPS_WANDER, n)
+            s[SNS_GPS_WANDER] = a * s[SNS_GPS_WANDER] + q * e0
+            s[SNS_GPS_WANDER + 1] = a * s[SNS_GPS_WANDER + 1] + q * e1
+            s[SNS_GPS_WANDER + 2] = a * s[SNS_GPS_WANDER + 2] + q * e2
+    sh, sv, svel = p[SNP_GPS_SIGMA_H], p[SNP_GPS_SIGMA_V], p[SNP_GPS_VEL_SIGMA]
+    wp = _normal3(seed, STREAM_GPS_POS, n) if sh > 0.0 or sv > 0.0 else (0.0, 0.0, 0.0)
+    wvel = _normal3(seed, STREAM_GPS_VEL, n) if svel > 0.0 else (0.0, 0.0, 0.0)
+    vel = velocity_nwu(x)
+    cap = int(p[SNP_GPS_QUEUE_CAP])
+    slot = _push_slot(s, cap, SNS_GPS_HEAD, SNS_GPS_COUNT)
+    base = int(p[SNP_GPS_QUEUE]) + slot * GPS_REC
+    s[base] = t
+    fault = t >= p[SNP_GPS_FAULT_T]
+    for i in range(3):
+        wander = wv if i == 2 else wh
+        white = sv if i == 2 else sh
+        pos = x[X_N + i]
+        if wander > 0.0:
+            pos += wander * s[SNS_GPS_WANDER + i]
+        if white > 0.0:
+            pos += white * wp[i]
+        if fault:
+            pos += p[SNP_GPS_STEP + i]
+        v = vel[i]
+        if svel > 0.0:
+            v += svel * wvel[i]
+        s[base + 1 + i] = pos
+        s[base + 4 + i] = v
+
+
+@njit
+def _gps_deliver(t: float, p: FloatArray, s: FloatArray, out: FloatArray) -> bool:
+    cap = int(p[SNP_GPS_QUEUE_CAP])
+    q0 = int(p[SNP_GPS_QUEUE])
+    slot = _pop_ready(s, q0, cap, GPS_REC, SNS_GPS_HEAD, SNS_GPS_COUNT, t, p[SNP_GPS_LAG_S], p[SNP_TOL_S])
+    if slot < 0 or p[SNP_GPS_DISABLED] != 0.0:
+        return False
+    base = q0 + slot * GPS_REC
+    t_valid = s[base]
+    out[OUT_GPS_T] = t_valid
+    frozen = p[SNP_GPS_FREEZE] != 0.0 and t_valid >= p[SNP_GPS_FAULT_T] and s[SNS_GPS_OUT] > 0.0
+    if not frozen:
+        for i in range(3):
+            out[OUT_GPS_POS + i] = s[base + 1 + i]
+            out[OUT_GPS_VEL + i] = s[base + 4 + i]
+    s[SNS_GPS_OUT] += 1.0
+    return True
+
+
+@njit
+def _att_sample(t: float, x: FloatArray, seed: int, p: FloatArray, s: FloatArray) -> None:
+    n = int(s[SNS_ATT_N])
+    s[SNS_ATT_LAST_T] = t
+    s[SNS_ATT_N] = float(n + 1)
+    noisy = p[SNP_ATT_SIGMA] > 0.0 or p[SNP_ATT_SIGMA + 1] > 0.0 or p[SNP_ATT_SIGMA + 2] > 0.0
+    w = _normal3(seed, STREAM_ATT, n) if noisy else (0.0, 0.0, 0.0)
+    cap = int(p[SNP_ATT_QUEUE_CAP])
+    slot = _push_slot(s, cap, SNS_ATT_HEAD, SNS_ATT_COUNT)
+    base = int(p[SNP_ATT_QUEUE]) + slot * ATT_REC
+    s[base] = t
+    fault = t >= p[SNP_ATT_FAULT_T]
+    for i in range(3):
+        e = x[PHI + i] + p[SNP_ATT_BIAS + i]
+        if p[SNP_ATT_SIGMA + i] > 0.0:
+            e += p[SNP_ATT_SIGMA + i] * w[i]
+        if fault:
+            e += p[SNP_ATT_STEP + i]
+        s[base + 1 + i] = e
+
+
+@njit
+def _att_deliver(t: float, p: FloatArray, s: FloatArray, out: FloatArray) -> bool:
+    cap = int(p[SNP_ATT_QUEUE_CAP])
+    q0 = int(p[SNP_ATT_QUEUE])
+    slot = _pop_ready(s, q0, cap, ATT_REC, SNS_ATT_HEAD, SNS_ATT_COUNT, t, p[SNP_ATT_LAG_S], p[SNP_TOL_S])
+    if slot < 0:
+        return False
+    base = q0 + slot * ATT_REC
+    t_valid = s[base]
+    out[OUT_ATT_T] = t_valid
+    frozen = p[SNP_ATT_FREEZE] != 0.0 and t_valid >= p[SNP_ATT_FAULT_T] and s[SNS_ATT_OUT] > 0.0
+    if not frozen:
+        for i in range(3):
+            out[OUT_ATT + i] = s[base + 1 + i]
+    s[SNS_ATT_OUT] += 1.0
+    return True
+
+
+@njit
+def _baro_sample(t: float, x: FloatArray, seed: int, p: FloatArray, s: FloatArray, out: FloatArray) -> None:
+    n = int(s[SNS_BARO_N])
+    dt = _since(t, s[SNS_BARO_LAST_T])
+    s[SNS_BARO_LAST_T] = t
+    s[SNS_BARO_N] = float(n + 1)
+    s[SNS_BARO_DRIFT] += p[SNP_BARO_DRIFT] * dt
+    sigma = p[SNP_BARO_SIGMA]
+    w = normal(seed, STREAM_BARO, n) if sigma > 0.0 else 0.0
+    out[OUT_BARO_T] = t
+    fault = t >= p[SNP_BARO_FAULT_T]
+    if fault and p[SNP_BARO_FREEZE] != 0.0 and s[SNS_BARO_OUT] > 0.0:
+        s[SNS_BARO_OUT] += 1.0
+        return
+    alt = x[Z_U] + s[SNS_BARO_DRIFT]
+    if sigma > 0.0:
+        alt += sigma * w
+    if fault:
+        alt += p[SNP_BARO_STEP]
+    out[OUT_BARO_ALT] = alt
+    s[SNS_BARO_OUT] += 1.0
+
+
+@njit
+def sensor_step(
+    t_s: float, x: FloatArray, accel_earth_nwu: FloatArray, params: FloatArray, state: FloatArray,
+    out: FloatArray,
+) -> int:  # fmt: skip
+    """One plant step of every sensor: ``x`` the true state at ``t_s``, ``accel_earth_nwu``
+    the true c.g. acceleration ``d/dt (R v)`` there (gravity not included). Writes the new
+    samples into ``out`` (layout in the module docstring) and returns the mask of the new
+    ones (``NEW_IMU | NEW_GPS | NEW_ATT | NEW_BARO``). Call it once per step, with
+    non-decreasing ``t_s``."""
+    seed = int(params[SNP_SEED])
+    tol = params[SNP_TOL_S]
+    new = 0
+    if _due(t_s, params[SNP_IMU_RATE_HZ], tol, state, SNS_IMU_NEXT):
+        rt = rot_body_to_earth(x[PHI], x[THETA], x[PSI])
+        _imu_sample(t_s, x, accel_earth_nwu, rt, seed, params, state, out)
+        new |= NEW_IMU
+    if _due(t_s, params[SNP_GPS_RATE_HZ], tol, state, SNS_GPS_NEXT):
+        _gps_sample(t_s, x, seed, params, state)
+    if _gps_deliver(t_s, params, state, out):
+        new |= NEW_GPS
+    if _due(t_s, params[SNP_ATT_RATE_HZ], tol, state, SNS_ATT_NEXT):
+        _att_sample(t_s, x, seed, params, state)
+    if _att_deliver(t_s, params, state, out):
+        new |= NEW_ATT
+    if _due(t_s, params[SNP_BARO_RATE_HZ], tol, state, SNS_BARO_NEXT):
+        _baro_sample(t_s, x, seed, params, state, out)
+        new |= NEW_BARO
+    return new
+
+
+# ---------------------------------------------------------------- arrays from a config
+
+
+def _queue_slots(rate_hz: float, lag_s: float) -> int:
+    """FIFO slots that hold every sample in flight: those taken within one lag, plus the
+    one pushed before the step's delivery, plus margin for jitter."""
+    if rate_hz <= 0.0:
+        return 2
+    return int(math.ceil(lag_s * rate_hz)) + 3
+
+
+def sensor_parameters(
+    config: Sensors, step_s: float, gravity_m_s2: float, *, min_slots: tuple[int, int] = (0, 0)
+) -> FloatArray:
+    """The compiled step's parameters for ``config`` at plant step ``step_s`` (layout: the
+    SNP_* offsets). A sensor that is off gets rate 0 (every step) and no error terms; its
+    failure settings still apply. ``min_slots``: the least GPS and attitude FIFO sizes (a
+    live update never shrinks them, so the entries in flight fit). ValueError: a field out
+    of range, a non-positive step or gravity, or a sensor rate above the plant rate."""
+    validate(config)
+    h = float(step_s)
+    if not (math.isfinite(h) and h > 0.0):
+        raise ValueError(f"step_s must be finite and > 0, got {step_s}")
+    if not (math.isfinite(gravity_m_s2) and gravity_m_s2 > 0.0):
+        raise ValueError(f"gravity_m_s2 must be finite and > 0, got {gravity_m_s2}")
+    plant_hz = 1.0 / h
+    for name in ("imu", "gps", "attitude", "baro"):
+        part = getattr(config, name)
+        if part.on and part.rate_hz > plant_hz * (1.0 + 1e-9):
+            raise ValueError(f"{name}.rate_hz = {part.rate_hz} Hz exceeds the plant rate {plant_hz} Hz")
+    p = np.zeros(N_SNP)
+    p[SNP_SEED] = float(config.seed)
+    p[SNP_TOL_S] = TOL_STEPS * h
+    p[SNP_GRAVITY] = gravity_m_s2
+
+    i = config.imu
+    if i.on:
+        root = math.sqrt(i.rate_hz)
+        p[SNP_IMU_RATE_HZ] = i.rate_hz
+        p[SNP_GYRO_SIGMA] = i.gyro_density_rad_s_rthz * root
+        p[SNP_ACCEL_SIGMA] = i.accel_density_m_s2_rthz * root
+        p[SNP_GYRO_BIAS : SNP_GYRO_BIAS + 3] = i.gyro_bias_rad_s
+        p[SNP_ACCEL_BIAS : SNP_ACCEL_BIAS + 3] = i.accel_bias_m_s2
+        p[SNP_GYRO_WALK] = i.gyro_walk_rad_s_rts
+        p[SNP_ACCEL_WALK] = i.accel_walk_m_s2_rts
+    p[SNP_IMU_FREEZE] = 1.0 if i.freeze else 0.0
+    p[SNP_IMU_FAULT_T] = i.fault_start_s
+    p[SNP_GYRO_STEP : SNP_GYRO_STEP + 3] = i.gyro_step_rad_s
+    p[SNP_ACCEL_STEP : SNP_ACCEL_STEP + 3] = i.accel_step_m_s2
+
+    g = config.gps
+    p[SNP_GPS_TAU_S] = g.wander_tau_s
+    if g.on:
+        p[SNP_GPS_RATE_HZ] = g.rate_hz
+        p[SNP_GPS_LAG_S] = g.lag_s
+        p[SNP_GPS_SIGMA_H] = g.noise_h_m
+        p[SNP_GPS_SIGMA_V] = g.noise_v_m
+        p[SNP_GPS_WANDER_H] = g.wander_h_m
+        p[SNP_GPS_WANDER_V] = g.wander_v_m
+        p[SNP_GPS_VEL_SIGMA] = g.vel_noise_m_s
+    p[SNP_GPS_DISABLED] = 1.0 if g.disabled else 0.0
+    p[SNP_GPS_FREEZE] = 1.0 if g.freeze else 0.0
+    p[SNP_GPS_FAULT_T] = g.fault_start_s
+    p[SNP_GPS_STEP : SNP_GPS_STEP + 3] = g.step_m
+
+    a = config.attitude
+    if a.on:
+        p[SNP_ATT_RATE_HZ] = a.rate_hz
+        p[SNP_ATT_LAG_S] = a.lag_s
+        p[SNP_ATT_SIGMA : SNP_ATT_SIGMA + 3] = a.noise_rad
+        p[SNP_ATT_BIAS : SNP_ATT_BIAS + 3] = a.bias_rad
+    p[SNP_ATT_FREEZE] = 1.0 if a.freeze else 0.0
+    p[SNP_ATT_FAULT_T] = a.fault_start_s
+    p[SNP_ATT_STEP : SNP_ATT_STEP + 3] = a.step_rad
+
+    b = config.baro
+    if b.on:
+        p[SNP_BARO_RATE_HZ] = b.rate_hz
+        p[SNP_BARO_SIGMA] = b.noise_m
+        p[SNP_BARO_DRIFT] = b.drift_m_s
+    p[SNP_BARO_FREEZE] = 1.0 if b.freeze else 0.0
+    p[SNP_BARO_FAULT_T] = b.fault_start_s
+    p[SNP_BARO_STEP] = b.step_m
+
+    gps_slots = max(_queue_slots(p[SNP_GPS_RATE_HZ], p[SNP_GPS_LAG_S]), min_slots[0])
+    att_slots = max(_queue_slots(p[SNP_ATT_RATE_HZ], p[SNP_ATT_LAG_S]), min_slots[1])
+    p[SNP_GPS_QUEUE] = float(N_SNS)
+    p[SNP_GPS_QUEUE_CAP] = float(gps_slots)
+    p[SNP_ATT_QUEUE] = float(N_SNS + gps_slots * GPS_REC)
+    p[SNP_ATT_QUEUE_CAP] = float(att_slots)
+    return p
+
+
+def sensor_state(params: FloatArray) -> FloatArray:
+    """A fresh state for ``params`` (layout: the SNS_* offsets, then the FIFOs): no sample
+    taken, the schedules start at the first call, the bias walks at zero."""
+    n = int(params[SNP_ATT_QUEUE]) + int(params[SNP_ATT_QUEUE_CAP]) * ATT_REC
+    s = np.zeros(n)
+    for i_next, i_last in (
+        (SNS_IMU_NEXT, SNS_IMU_LAST_T),
+        (SNS_GPS_NEXT, SNS_GPS_LAST_T),
+        (SNS_ATT_NEXT, SNS_ATT_LAST_T),
+        (SNS_BARO_NEXT, SNS_BARO_LAST_T),
+    ):
+        s[i_next] = -1.0
+        s[i_last] = math.nan
+    return s
+
+
+def _move_queue(
+    old_p: FloatArray, old_s: FloatArray, new_p: FloatArray, new_s: FloatArray, q: int, cap_i: int,
+    head_i: int, count_i: int, width: int,
+) -> None:  # fmt: skip
+    """Carry the FIFO's entries, oldest first, into the new FIFO (at least as large)."""
+    old_cap, new_cap = int(old_p[cap_i]), int(new_p[cap_i])
+    head, count = int(old_s[head_i]), int(old_s[count_i])
+    entries = [int(old_p[q]) + ((head + j) % old_cap) * width for j in range(count)][-new_cap:]
+    base = int(new_p[q])
+    for j, src in enumerate(entries):
+        new_s[base + j * width : base + (j + 1) * width] = old_s[src : src + width]
+    new_s[head_i] = 0.0
+    new_s[count_i] = float(len(entries))
+
+
+class SensorSamples(NamedTuple):
+    """The samples one plant step produced (None: no new sample of that sensor)."""
+
+    imu: ImuSample | None
+    gps: GpsFix | None
+    attitude: AttitudeSample | None
+    baro: BaroSample | None
+
+
+def samples_from_out(out: FloatArray, mask: int) -> SensorSamples:
+    """The NamedTuples of :mod:`heli_common.measurements` for the samples flagged in ``mask``."""
+
+    def v3(i: int) -> tuple[float, float, float]:
+        return (float(out[i]), float(out[i + 1]), float(out[i + 2]))
+
+    imu = ImuSample(float(out[OUT_IMU_T]), v3(OUT_GYRO), v3(OUT_ACCEL)) if mask & NEW_IMU else None
+    gps = GpsFix(float(out[OUT_GPS_T]), v3(OUT_GPS_POS), v3(OUT_GPS_VEL)) if mask & NEW_GPS else None
+    att = AttitudeSample(float(out[OUT_ATT_T]), v3(OUT_ATT)) if mask & NEW_ATT else None
+    baro = BaroSample(float(out[OUT_BARO_T]), float(out[OUT_BARO_ALT])) if mask & NEW_BARO else None
+    return SensorSamples(imu, gps, att, baro)
+
+
+class SensorModel:
+    """A configured set of sensors for one plant running at ``step_s``; ``gravity_m_s2``
+    must be the plant's (the airframe's), so that the accelerometer reads exactly +g at
+    rest. :meth:`step` is :func:`sensor_step` with NamedTuples out; the compiled plant can
+    call :func:`sensor_step` on :attr:`params`, :attr:`state` and :attr:`out` directly."""
+
+    def __init__(self, config: Sensors, step_s: float, gravity_m_s2: float) -> None:
+        self.config = config
+        self.step_s = float(step_s)
+        self.gravity_m_s2 = float(gravity_m_s2)
+        self.params = sensor_parameters(config, self.step_s, self.gravity_m_s2)
+        self.state = sensor_state(self.params)
+        self.out = np.full(N_OUT, math.nan)
+        # load (or compile) the kernel now, on copies, not on the first step
+        sensor_step(0.0, np.zeros(N_STATE), np.zeros(3), self.params, self.state.copy(), self.out.copy())
+
+    def step(self, t_s: float, x: FloatArray, accel_earth_nwu: FloatArray) -> SensorSamples:
+        """The samples new at ``t_s`` for the true state ``x`` there and the true earth-frame
+        acceleration (``d/dt (R v)``, gravity not included; see the module docstring)."""
+        xs = np.ascontiguousarray(x, dtype=np.float64)
+        a = np.ascontiguousarray(accel_earth_nwu, dtype=np.float64)
+        if xs.shape != (N_STATE,) or a.shape != (3,):
+            raise ValueError(f"x must have shape ({N_STATE},) and accel_earth_nwu (3,)")
+        mask = sensor_step(float(t_s), xs, a, self.params, self.state, self.out)
+        return samples_from_out(self.out, mask)
+
+    def update(self, config: Sensors) -> None:
+        """Take new settings from the next step on (live knobs, failures). The noise
+        processes keep their state (counters, bias walks, GPS wander, baro drift), fixes in
+        flight stay in their FIFO, and a sensor whose rate changed restarts its schedule on
+        the new rate's grid. The plant step and gravity stay."""
+        old_p, old_s = self.params, self.state
+        slots = (int(old_p[SNP_GPS_QUEUE_CAP]), int(old_p[SNP_ATT_QUEUE_CAP]))
+        new_p = sensor_parameters(config, self.step_s, self.gravity_m_s2, min_slots=slots)
+        new_s = sensor_state(new_p)
+        new_s[:N_SNS] = old_s[:N_SNS]
+        for rate_i, next_i in (
+            (SNP_IMU_RATE_HZ, SNS_IMU_NEXT),
+            (SNP_GPS_RATE_HZ, SNS_GPS_NEXT),
+            (SNP_ATT_RATE_HZ, SNS_ATT_NEXT),
+            (SNP_BARO_RATE_HZ, SNS_BARO_NEXT),
+        ):
+            if new_p[rate_i] != old_p[rate_i]:
+                new_s[next_i] = -1.0
+        _move_queue(old_p, old_s, new_p, new_s, SNP_GPS_QUEUE, SNP_GPS_QUEUE_CAP, SNS_GPS_HEAD, SNS_GPS_COUNT,
+                    GPS_REC)  # fmt: skip
+        _move_queue(old_p, old_s, new_p, new_s, SNP_ATT_QUEUE, SNP_ATT_QUEUE_CAP, SNS_ATT_HEAD, SNS_ATT_COUNT,
+                    ATT_REC)  # fmt: skip
+        self.config, self.params, self.state = config, new_p, new_s
