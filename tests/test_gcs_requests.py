@@ -17,6 +17,7 @@ from pathlib import Path
 import pytest
 from test_ground_client import client, gwp, running_vehicle
 
+from autopilot.params_table import SPECS
 from ground.client import GroundClient
 from heli_common.mavlink import mission_items as ms
 from heli_common.mavlink import modes as wm
@@ -165,7 +166,7 @@ def test_qgroundcontrol_connect_sequence_is_answered_at_every_step() -> None:
         for msg_id in (397, 395, 300):
             assert _request(gc, msg_id)[0] in (m2.MAV_RESULT_DENIED, m2.MAV_RESULT_UNSUPPORTED)
         # parameters, then mission, fence and rally downloads
-        assert len(gc.param_list()) == 43
+        assert len(gc.param_list()) == len(SPECS)
         for mtype in (m2.MAV_MISSION_TYPE_MISSION, m2.MAV_MISSION_TYPE_FENCE, m2.MAV_MISSION_TYPE_RALLY):
             gc.send(m2.MAVLink_mission_request_list_message(1, 1, mtype))
             count = gc.recv_match(

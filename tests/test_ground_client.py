@@ -25,6 +25,7 @@ import pytest
 from vehicle import free_ports, spawn_up
 
 from autopilot import trajectory_codec as codec
+from autopilot.params_table import SPECS
 from autopilot.trajectory.analytic import StraightLine
 from ground import cli
 from ground.client import (
@@ -45,7 +46,7 @@ from heli_sitl.children import Child
 m2 = mavlink2
 HOME = GeoPoint(47.397742, 8.545594, 488.0)  # heli-autopilot's default --home
 START_S = 60.0  # first start may compile the numba kernels (~15-30 s)
-N_PARAMS = 43
+N_PARAMS = len(SPECS)  # the vehicle's table, SIM_ knobs included
 
 
 # ----------------------------------------------------------------------------- the vehicle

@@ -4,7 +4,7 @@ MAVProxy runs as its own process on the vehicle's ground-station port
 (``--master=udpin:127.0.0.1:PORT``) and takes its commands on stdin, as typed at its
 console; ``--non-interactive`` would stop it reading stdin, so it is not used. It ends on
 EOF (exit code 1, always). What is checked: ``status`` shows the vehicle's telemetry,
-``param fetch`` gets all 43 parameters, ``wp load`` uploads a QGC WPL file written by
+``param fetch`` gets every parameter, ``wp load`` uploads a QGC WPL file written by
 ground.files that the helicopter then flies (armed and started with MAVProxy's own
 ``arm throttle`` and ``long MISSION_START``), ``wp list`` downloads it back.
 
@@ -33,6 +33,7 @@ import numpy as np
 import pytest
 from vehicle import free_ports, spawn_up
 
+from autopilot.params_table import SPECS
 from ground.client import GroundClient
 from ground.files import read_waypoints, write_waypoints
 from heli_common.config import CONFIG_DIR as CONFIGS
@@ -156,7 +157,7 @@ def test_mavproxy_status_params_and_a_flown_waypoint_file(tmp_path: Path) -> Non
 
         t0 = time.monotonic()
         at = mp.send("param fetch")
-        mp.expect(r"Received 43 parameters", 30.0, at)
+        mp.expect(rf"Received {len(SPECS)} parameters", 30.0, at)
         fetch_s = time.monotonic() - t0
         at = mp.send("param show TLC_L1_W_X")
         mp.expect(r"TLC_L1_W_X\s+0\.1875", 5.0, at)
@@ -230,7 +231,7 @@ def test_mavproxy_names_and_sets_modes_reads_parameters_and_sees_no_fence(tmp_pa
     (home / ".pymavlink").mkdir(parents=True)
     shutil.copy(CONFIGS / "pymavlink_custom_mode_map.json", home / ".pymavlink" / "custom_mode_map.json")
     with vehicle_and_mavproxy(tmp_path, {**os.environ, "HOME": str(home)}) as (mp, _):
-        mp.expect(r"Received 43 parameters", START_S)
+        mp.expect(rf"Received {len(SPECS)} parameters", START_S)
         mp.expect(r"^HOLD> |Mode HOLD", 5.0)
         pos = mp.send("param show MAV_SYS_ID")
         mp.expect(r"MAV_SYS_ID\s+1(\.0)?\s*$", 5.0, pos)
