@@ -1,4 +1,4 @@
-"""Trajectory linearization control (Zhu & Huo 2013), as specified in shared/docs/tlc-model.md."""
+"""Trajectory linearization control (Zhu & Huo 2013), as documented in docs/model.md section 3."""
 
 from autopilot.tlc.controller import Feedforward, TLController
 from autopilot.tlc.gains import Gains

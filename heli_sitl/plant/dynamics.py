@@ -3,7 +3,7 @@
 ``derivative(t, x, u, c)`` returns dx/dt for the named state layout of
 :mod:`heli_common.state`, pitches ``u`` [rad] and :class:`~heli_common.airframe.PlantConstants`.
 Frames: earth NWU, body FLU, main thrust along +z_body. Torques follow the paper's
-printed eq. 13 (see shared/docs/tlc-model.md section 3 for the physically derived
+printed eq. 13 (see docs/model.md section 2.2 for the physically derived
 alternative and why the printed one is kept).
 """
 
