@@ -115,7 +115,8 @@ def apply_params(ctrl: TLController, manager: FlightManager, table: ParamTable) 
 
 
 def make_gcs(
-    args: argparse.Namespace, sc: Scenario, ctrl: TLController, manager: FlightManager, limits: np.ndarray
+    args: argparse.Namespace, sc: Scenario, ctrl: TLController, manager: FlightManager, limits: np.ndarray,
+    world: World | None = None,
 ) -> GcsService:
     home = manager.cfg.home
     cfg = GcsConfig(
@@ -124,7 +125,6 @@ def make_gcs(
         signing_key=read_signing_key(args.signing_key) if args.signing_key else None,
         system_id=args.sysid,
     )  # fmt: skip
-    world = World.load(args.world) if args.world else None
     table = ParamTable(sc.gains, sc.airframe.limits, ctrl.rate_hz, home=home, system_id=args.sysid,
                        world=world)  # fmt: skip
     return GcsService(cfg, table, lambda t: apply_params(ctrl, manager, t), limits, manager=manager)
@@ -139,6 +139,7 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
     if args.port == args.plant_port:  # it would only hear its own commands
         raise UsageError(f"--port and --plant-port must differ (both {args.port})")
     sc = Scenario.load(args.scenario, gains=args.gains)
+    world = World.load(args.world) if args.world else None  # refused before anything starts
     rate = args.rate_hz or sc.run.rate_hz
     ctrl = TLController(sc.airframe, sc.gains, rate, args.feedforward or sc.run.feedforward)
     limits = limits_array(sc.airframe.limits.as_tuple())
@@ -155,7 +156,7 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
     # flushed in small pieces (20 a second): each costs a fraction of a period
     recorder = Recorder(stream_csv=out / "run.csv", flush_every=max(5, round(rate / 20))) if out else None
     t0_unix_us = int(time.time() * 1e6)
-    gcs = None if args.no_gcs else make_gcs(args, sc, ctrl, manager, limits)
+    gcs = None if args.no_gcs else make_gcs(args, sc, ctrl, manager, limits, world)
     servo = with_overrides(load_servo_link(args.links), args.servo_link, args.can_bus, args.actuator_ids)
     can = None
     if servo.link == "can":

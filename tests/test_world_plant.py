@@ -198,3 +198,13 @@ def test_the_summary_states_the_plant_beside_the_design(paper: Scenario) -> None
     # rotor speed -3 %: thrust per unit coefficient goes as Omega^2
     assert diff["thrust_scale_m"][0] / diff["thrust_scale_m"][1] == pytest.approx(0.97**2)
     assert "a_m" not in diff  # the lift slope was not changed
+
+
+def test_a_bad_world_is_refused_before_anything_starts() -> None:
+    """Every command that takes --world refuses a missing one at once (usage error, exit 2),
+    the autopilot included even without its ground-station link."""
+    from autopilot import cli as autopilot_cli
+    from heli_sitl import cli
+
+    assert cli.main(["run", "--world", "nosuchworld"]) == 2
+    assert autopilot_cli.main(["--world", "nosuchworld", "--no-gcs"]) == 2

@@ -26,15 +26,21 @@ class WorldSync:
         self.link = link
         self.plant_system = plant_system
         self._known = table.sim_values()  # what the plant started with
+        self._generation = table.generation
         self._pending: dict[str, int] = {}  # name -> sends left
         self.sent = 0
 
     def at_tick_start(self, t_s: float, x: FloatArray) -> None:
-        values = self.table.sim_values()
-        for name, v in values.items():
-            if v != self._known[name]:
-                self._known[name] = v
-                self._pending[name] = REPEATS
+        # every tick: only a look at the table's generation unless something changed
+        if self.table.generation != self._generation:
+            self._generation = self.table.generation
+            for name, v in self.table.sim_values().items():
+                if v != self._known[name]:
+                    self._known[name] = v
+                    self._pending[name] = REPEATS
+        if not self._pending:
+            return
+        values = self._known
         for name in list(self._pending):
             msg = mavlink2.MAVLink_param_set_message(
                 self.plant_system, PLANT_COMPONENT, name.encode("ascii"), values[name],
