@@ -14,6 +14,7 @@ from types import FrameType
 
 import numpy as np
 
+from autopilot.estimation.config import EstimatorConfig
 from autopilot.flight.commands import Arm, FlyTrajectory
 from autopilot.flight.manager import FlightConfig, FlightManager
 from autopilot.flight_log import write_flight_tlog
@@ -26,9 +27,8 @@ from autopilot.runner import Recorder, Runner, RunnerConfig, TickService
 from autopilot.scenario import Scenario
 from autopilot.tlc.controller import TLController
 from heli_common import cli_args as arg
-from heli_common.config import ConfigError
 from heli_common.defaults import HOME, ports
-from heli_common.geo import GeoPoint
+from heli_common.geo import parse_geo_point
 from heli_common.links import ServoOutput
 from heli_common.mavlink.udp import LOOPBACK
 from heli_common.mavlink.wire import read_signing_key
@@ -67,6 +67,9 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--world", default=None, metavar="FILE|PRESET",
                    help="the world the plant flies (configs/world/ presets): its SIM_ parameters' "
                         "starting values; give the plant the same --world")
+    p.add_argument("--estimator", default=None, metavar="FILE",
+                   help="estimator tuning (TOML, docs/estimator.md), used when the plant sends "
+                        "measurements (a world with [sensors]); default: the documented defaults")
     g.add_argument("--gcs-port", type=arg.port, default=None, help=f"default {PORTS.gcs} + 10 N")
     g.add_argument("--api-port", type=arg.port, default=None, help=f"default {PORTS.api} + 10 N")
     g.add_argument("--local-gcs-port", type=arg.bind_port, default=None,
@@ -96,14 +99,6 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGTERM, on_signal)
     signal.signal(signal.SIGINT, on_signal)
     return run_main("heli-autopilot", lambda: run(args, stop))
-
-
-def parse_home(text: str) -> GeoPoint:
-    try:
-        lat, lon, alt = (float(v) for v in text.split(","))
-        return GeoPoint(lat, lon, alt)
-    except ValueError as exc:
-        raise ConfigError(f"--home {text!r}: expected lat,lon,alt ({exc})") from exc
 
 
 def apply_params(ctrl: TLController, manager: FlightManager, table: ParamTable) -> None:
@@ -140,10 +135,11 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
         raise UsageError(f"--port and --plant-port must differ (both {args.port})")
     sc = Scenario.load(args.scenario, gains=args.gains)
     world = World.load(args.world) if args.world else None  # refused before anything starts
+    estimator = EstimatorConfig.load(args.estimator) if args.estimator else None
     rate = args.rate_hz or sc.run.rate_hz
     ctrl = TLController(sc.airframe, sc.gains, rate, args.feedforward or sc.run.feedforward)
     limits = limits_array(sc.airframe.limits.as_tuple())
-    manager = FlightManager(FlightConfig(home=parse_home(args.home)))
+    manager = FlightManager(FlightConfig(home=parse_geo_point(args.home, '--home')))
     if args.autostart:
         for cmd in (FlyTrajectory(sc.trajectory), Arm()):
             reply = manager.execute(cmd, 0.0, np.zeros(12))
@@ -163,10 +159,10 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
         can = CanServoSender(servo.can_bus, node_id=args.can_node_id or servo.node_id,
                              actuator_ids=servo.actuator_ids)  # fmt: skip
     try:
-        with SimLink((LOOPBACK, args.port), (LOOPBACK, args.plant_port), limits) as sim:
+        with SimLink((LOOPBACK, args.port), (LOOPBACK, args.plant_port), limits, manager.cfg.home) as sim:
             servo_out: ServoOutput = CanServoOutput(can) if can is not None else sim
             services: list[TickService] = [gcs, WorldSync(gcs.params, sim.udp)] if gcs else []
-            runner = Runner(ctrl, manager, sim, servo_out, cfg, services, recorder)
+            runner = Runner(ctrl, manager, sim, servo_out, cfg, services, recorder, estimator)
             if gcs is not None:
                 gcs.truth = lambda: runner.sample
             stats = runner.run(stop)
@@ -192,6 +188,7 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
         recorder.close()
         record.write_csv(out / "run.csv")  # the whole flight again, at once
         record.write_world_csv(out / "world.csv")
+        record.write_est_csv(out / "est.csv")
         if record.t_s.size:
             write_flight_tlog(out / "flight.tlog", record, limits, t0_unix_us)
         summary = record.write_summary(out / "summary.json")

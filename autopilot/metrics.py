@@ -18,6 +18,9 @@ CSV_HEADER = (
 )  # fmt: skip
 PITCH_KEYS = ("theta_m", "theta_t", "eps", "eta")
 WORLD_CSV_HEADER = ("t", "air_n", "air_w", "air_u", "theta_m_pos", "theta_t_pos", "eps_pos", "eta_pos")
+# est.csv, flying from sensors: the estimate the controller flew on, beside run.csv's truth,
+# then the estimator's log (autopilot.estimation.kf.EST_LOG_COLUMNS)
+EST_CSV_STATE = ("t", "x_est", "y_est", "z_est", "phi_est", "theta_est", "psi_est")
 
 
 @dataclass(frozen=True)
@@ -41,6 +44,10 @@ class FlightRecord:
     # pitches the servos reached (rad), at the end of each tick's hold
     air_nwu_m_s: FloatArray | None = None
     servo_rad: FloatArray | None = None
+    # flying from sensors: the estimate the controller flew on (N, 12) and the estimator's
+    # log (N, len(EST_LOG_COLUMNS)); ``x`` stays the truth
+    x_hat: FloatArray | None = None
+    est_log: FloatArray | None = None
 
     @classmethod
     def from_ticks(
@@ -113,12 +120,56 @@ class FlightRecord:
             "wall_s": self.wall_s,
             "realtime_factor": duration / self.wall_s if self.wall_s > 0 else None,
         }
+        if self.x_hat is not None:
+            out["estimate"] = self._estimate_summary(err, end)
         if self.landing is not None and self.landing.any():
             lt = self.t_s[self.landing]
             land_err = float(np.max(err[self.landing]))
             out["landing"] = {"duration_s": float(lt[-1] - lt[0]), "max_pos_err_m": land_err}
         out.update(self.extra)
         return out
+
+    def _estimate_summary(self, err: FloatArray, end: float) -> dict[str, Any]:
+        """Flying from sensors: the error the controller saw (reference - estimate) beside
+        the true one, and the estimate's own error (estimate - truth), per window."""
+        assert self.x_hat is not None
+        seen = np.linalg.norm(self.ref[:, 0:3] - self.x_hat[:, POS], axis=1)
+        est = np.linalg.norm(self.x_hat[:, POS] - self.x[:, POS], axis=1)
+        out: dict[str, Any] = {"rms_pos_err_seen_m": {}, "rms_est_err_m": {}, "max_est_err_m": {}}
+        for t0 in (0.0, 10.0, 45.0):
+            m = self.window(t0, end) & np.isfinite(est)
+            if m.any():
+                key = f"{t0:g}-{end:g}"
+                out["rms_pos_err_seen_m"][key] = float(np.sqrt(np.mean(seen[m] ** 2)))
+                out["rms_est_err_m"][key] = float(np.sqrt(np.mean(est[m] ** 2)))
+                out["max_est_err_m"][key] = float(np.max(est[m]))
+        if self.est_log is not None:
+            from autopilot.estimation.kf import ACCEPTED, EST_LOG_COLUMNS, REJECTED, RESET
+
+            st = self.est_log[:, EST_LOG_COLUMNS.index("gps_status")]
+            out["gps_fixes"] = {
+                "accepted": int(np.sum(st == ACCEPTED)),
+                "rejected": int(np.sum(st == REJECTED)),
+                "resets": int(np.sum(st == RESET)),
+            }
+            nis = self.est_log[:, EST_LOG_COLUMNS.index("nis")]
+            nis = nis[np.isfinite(nis)]
+            out["mean_nis"] = float(np.mean(nis)) if nis.size else None
+        return out
+
+    def write_est_csv(self, path: Path) -> bool:
+        """est.csv: per tick, the estimate the controller flew on (position NWU, Euler) and
+        the estimator's log; False (nothing written) when it flew on the truth."""
+        if self.x_hat is None or self.est_log is None:
+            return False
+        from autopilot.estimation.kf import EST_LOG_COLUMNS
+
+        e = self.x_hat[:, EULER].copy()
+        e[:, 2] = np.unwrap(e[:, 2])
+        with path.open("w", newline="") as fh:
+            csv.writer(fh).writerow((*EST_CSV_STATE, *EST_LOG_COLUMNS))
+            write_rows(fh, np.column_stack([self.t_s, self.x_hat[:, POS], e, self.est_log]))
+        return True
 
     def rows(self, psi_before: float | None = None) -> FloatArray:
         """The CSV rows; psi unwrapped (continuing from ``psi_before``, the unwrapped psi of

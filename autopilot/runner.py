@@ -22,6 +22,9 @@ from typing import IO, Any, Protocol
 
 import numpy as np
 
+from autopilot.estimation.config import EstimatorConfig
+from autopilot.estimation.kf import N_EST_LOG
+from autopilot.estimation.onboard import OnboardEstimator
 from autopilot.flight.manager import FlightManager
 from autopilot.flight.modes import Mode
 from autopilot.metrics import CSV_HEADER, FlightRecord, write_rows
@@ -118,11 +121,13 @@ class Recorder:
     no copy of the record during the flight (doubling one array copies megabytes in one
     tick: 22 ms at 16384 rows, four skipped ticks at 400 Hz)."""
 
-    # t, state, reference, pitches, diagnostics, trajectory time, landing flag, and the
-    # world's truth when the plant flies one (air NWU, servo positions; NaN otherwise)
-    WIDTH = 1 + 12 + 9 + N_PITCH + N_DIAG + 2 + 3 + N_PITCH
+    # t, state, reference, pitches, diagnostics, trajectory time, landing flag, the
+    # world's truth when the plant flies one (air NWU, servo positions; NaN otherwise), and
+    # flying from sensors the estimate and the estimator's log (NaN otherwise)
     _TRAJ_T = 22 + N_PITCH + N_DIAG
     _AIR = _TRAJ_T + 2
+    _EST = _AIR + 3 + N_PITCH
+    WIDTH = _EST + 12 + N_EST_LOG
 
     def __init__(self, capacity: int = 4096, stream_csv: Path | None = None, flush_every: int = 100) -> None:
         self._block = capacity
@@ -165,6 +170,7 @@ class Recorder:
     def add(
         self, t: float, x: FloatArray, ref: FloatArray, u: FloatArray, diag: FloatArray,
         traj_t: float = math.nan, landing: bool = False, truth: StateSample | None = None,
+        x_hat: FloatArray | None = None, est_row: FloatArray | None = None,
     ) -> None:  # fmt: skip
         i = self.n - (len(self._blocks) - 1) * self._block
         if i == self._block:
@@ -181,7 +187,9 @@ class Recorder:
         air = None if truth is None else truth.air_nwu_m_s
         servo = None if truth is None else truth.servo_rad
         row[self._AIR : self._AIR + 3] = math.nan if air is None else air
-        row[self._AIR + 3 :] = math.nan if servo is None else servo
+        row[self._AIR + 3 : self._EST] = math.nan if servo is None else servo
+        row[self._EST : self._EST + 12] = math.nan if x_hat is None else x_hat
+        row[self._EST + 12 :] = math.nan if est_row is None else est_row
         self.n += 1
 
     def rows_array(self, start: int = 0) -> FloatArray:
@@ -207,9 +215,12 @@ class Recorder:
             b[:, 0].copy(), b[:, 1:13].copy(), b[:, 13:22].copy(), u, b[:, 22 + N_PITCH : self._TRAJ_T],
             wall_s, extra, traj_t_s=b[:, self._TRAJ_T].copy(), landing=b[:, self._TRAJ_T + 1] != 0,
         )  # fmt: skip
-        air, servo = b[:, self._AIR : self._AIR + 3], b[:, self._AIR + 3 :]
+        air, servo = b[:, self._AIR : self._AIR + 3], b[:, self._AIR + 3 : self._EST]
         if np.isfinite(air).any():
             rec = dataclasses.replace(rec, air_nwu_m_s=air.copy(), servo_rad=servo.copy())
+        x_hat = b[:, self._EST : self._EST + 12]
+        if np.isfinite(x_hat).any():
+            rec = dataclasses.replace(rec, x_hat=x_hat.copy(), est_log=b[:, self._EST + 12 :].copy())
         return rec
 
 
@@ -223,8 +234,12 @@ class Runner:
         cfg: RunnerConfig,
         services: Sequence[TickService] = (),
         recorder: Recorder | None = None,
+        estimator: EstimatorConfig | None = None,
     ) -> None:
         self.ctrl = ctrl
+        self.estimator = estimator or EstimatorConfig()
+        # flying from sensors (the plant sends measurements): the estimate the tick flies on
+        self.nav: OnboardEstimator | None = None
         self.manager = flight
         self.flight = flight.flight
         self.state_in = state_in
@@ -247,9 +262,27 @@ class Runner:
         for s in self.services:
             s.between_ticks(t_s, x)
 
+    def _navigate(self, t_s: float, truth: FloatArray) -> FloatArray:
+        """The state the tick flies on: the plant's state as sent, or, when the plant sends
+        measurements, the estimate from them (started at the first such state's truth, as
+        an estimator aligned at its known spawn point), its health fed to the failsafes."""
+        s = self.sample
+        if s is None or s.meas is None:
+            return truth
+        if self.nav is None:
+            self.nav = OnboardEstimator(self.estimator, self.cfg.rate_hz, truth)
+        x_hat = self.nav.update(s.meas_t_s, s.meas, s.meas_mask)
+        h = self.nav.health
+        self.manager.navigation(t_s, x_hat, h.gps_lost, h.n_rejected, h.n_resets)
+        return x_hat
+
     def tick(self, t_s: float, x: FloatArray, t_us: int | None = None) -> FloatArray:
         """One control step at ``t_s``; the command goes out (answering the state stamped
-        ``t_us``) before the tick hooks run. ``t_us`` None: compute only, send nothing."""
+        ``t_us``) before the tick hooks run. ``t_us`` None: compute only, send nothing.
+        ``x`` is the plant's state; flying from sensors, the tick runs on the estimate and
+        ``x`` goes to the record only (the truth beside it)."""
+        truth = x
+        x = self._navigate(t_s, truth)
         self._last_t_s, self._last_x = t_s, x
         for s in self.services:
             s.at_tick_start(t_s, x)
@@ -269,8 +302,10 @@ class Runner:
             self.u = u
             if self.recorder is not None:  # flight time: since arming
                 landing = self.flight.mode is Mode.LAND
-                self.recorder.add(t_s - self._t_arm_s, x, ref, u, self.ctrl.diag,
-                                  self.manager.trajectory_time(t_s), landing, self.sample)  # fmt: skip
+                est = None if self.nav is None else self.nav.log_row
+                self.recorder.add(t_s - self._t_arm_s, truth, ref, u, self.ctrl.diag,
+                                  self.manager.trajectory_time(t_s), landing, self.sample,
+                                  None if est is None else x, est)  # fmt: skip
         self.stats.ticks += 1
         if t_us is not None:
             self.servo_out.send_pitches(t_us, self.u, self.flight.armed)
@@ -304,6 +339,7 @@ class Runner:
         self.stats.plant_sessions += 1
         log.warning("new plant session (clock restarted at %.3f s): disarmed, control reset", s.t_us / 1e6)
         self.manager.plant_restarted(s.t_us / 1e6, s.x)
+        self.nav = None  # a new vehicle: the estimator starts again on its first state
         self.ctrl.reset()
         self.u = np.zeros(N_PITCH)
 
@@ -322,6 +358,7 @@ class Runner:
         """Load the compiled code of the first tick (controller, services) before the clock
         starts: tens of milliseconds that would otherwise make the first ticks late."""
         self.ctrl.warm_up(x)
+        OnboardEstimator(self.estimator, self.cfg.rate_hz, x).warm_up()
         for s in self.services:
             s.warm_up(x)
 

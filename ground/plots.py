@@ -145,3 +145,35 @@ def plot_world(
     plt.close(fig)
     return path
 
+
+
+ESTIMATE_FIGURE = "fig11_estimate.png"
+
+
+def plot_estimate(
+    t: npt.NDArray[np.float64], truth_nwu_m: npt.NDArray[np.float64], est_nwu_m: npt.NDArray[np.float64],
+    sd_nwu_m: npt.NDArray[np.float64], out_dir: Path, title: str = "",
+) -> Path:  # fmt: skip
+    """Fig 11, flying from sensors: per axis the estimate's error against the truth with the
+    estimator's own +-2 sigma, and the 3-D estimate error."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    path = out_dir / ESTIMATE_FIGURE
+    fig, axs = plt.subplots(4, 1, figsize=(8, 10), sharex=True)
+    err = est_nwu_m - truth_nwu_m
+    for i, name in enumerate(("north", "west", "up")):
+        a = axs[i]
+        a.fill_between(t, -2 * sd_nwu_m[:, i], 2 * sd_nwu_m[:, i], color="0.85", label="estimator +-2 sigma")
+        a.plot(t, err[:, i], "b", lw=0.8, label="estimate - truth")
+        a.set_ylabel(f"{name} [m]")
+        a.grid(alpha=0.3)
+    axs[0].legend(loc="lower right", bbox_to_anchor=(1.0, 1.0), ncol=2, frameon=False, fontsize=8)
+    axs[3].plot(t, np.linalg.norm(err, axis=1), "k", lw=0.8)
+    axs[3].set_ylabel("|estimate - truth| [m]")
+    axs[3].grid(alpha=0.3)
+    suffix = f" - {title}" if title else ""
+    fig.suptitle(f"Fig. 11: position estimate vs truth{suffix}", fontsize=10)
+    axs[-1].set_xlabel("t [s]")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

@@ -142,17 +142,12 @@ def _build(cls: type[T], table: Mapping[str, Any], where: str, top: bool = False
         if key not in fields:
             close = difflib.get_close_matches(key, list(fields), n=1)
             hint = f" (did you mean {close[0]!r}?)" if close else ""
-            raise ConfigError(
-                f"{where}: unknown key {key!r}{hint}; expected one of {', '.join(fields)}"
-            )
+            raise ConfigError(f"{where}: unknown key {key!r}{hint}; expected one of {', '.join(fields)}")
     kwargs: dict[str, Any] = {}
     for name, f in fields.items():
         key_where = f"{where}: {name}" if top else f"{where}.{name}"
         if name not in table:
-            has_default = (
-                f.default is not dataclasses.MISSING
-                or f.default_factory is not dataclasses.MISSING
-            )
+            has_default = f.default is not dataclasses.MISSING or f.default_factory is not dataclasses.MISSING
             if has_default:
                 continue
             want = _expect(f.metadata) if hints[name] in (float, int) else "a value"
@@ -173,3 +168,14 @@ def load(cls: type[T], path: str | Path) -> T:
     """Load a whole TOML file into ``cls``."""
     p, table = read_toml(path)
     return build(cls, table, str(p))
+
+
+@dataclasses.dataclass(frozen=True)
+class SimParam:
+    """A simulator setting (world, sensors) a ground station reads and sets as a MAVLink parameter."""
+
+    name: str
+    lo: float
+    hi: float
+    unit: str
+    description: str

@@ -113,3 +113,14 @@ def horizontal_distance_m(home: GeoPoint, lat_deg: float, lon_deg: float) -> flo
     """Flat-earth horizontal distance from home [m]."""
     north_m, east_m, _ = geo_to_ned_m(home, lat_deg, lon_deg, home.alt_amsl_m)
     return math.hypot(north_m, east_m)
+
+
+def parse_geo_point(text: str, what: str = "position") -> GeoPoint:
+    """``lat,lon,alt`` (deg, deg, m AMSL), as a command line gives it; ConfigError if not."""
+    from heli_common.config import ConfigError
+
+    try:
+        lat, lon, alt = (float(v) for v in text.split(","))
+        return GeoPoint(lat, lon, alt)
+    except ValueError as exc:
+        raise ConfigError(f"{what} {text!r}: expected lat,lon,alt ({exc})") from exc

@@ -10,6 +10,27 @@ from typing import NamedTuple
 
 Vec3 = tuple[float, float, float]
 
+# --- the same samples as one flat float64 array (what compiled code passes around) -------
+# Each slot holds that sensor's latest sample (NaN before its first); a bit mask says which
+# are new this step. The plant's sensor models write it, the sim link carries it, the
+# autopilot's estimator reads it: the in-process loop and the processes share one layout.
+OUT_IMU_T = 0
+OUT_GYRO = 1  # 3, body FLU [rad/s]
+OUT_ACCEL = 4  # 3, body FLU specific force [m/s^2]
+OUT_GPS_T = 7  # validity time of the fix delivered
+OUT_GPS_POS = 8  # 3, earth NWU [m]
+OUT_GPS_VEL = 11  # 3, earth NWU [m/s]
+OUT_ATT_T = 14
+OUT_ATT = 15  # 3, ZYX Euler [rad]
+OUT_BARO_T = 18
+OUT_BARO_ALT = 19  # height above home [m]
+N_OUT = 20
+
+NEW_IMU = 1
+NEW_GPS = 2
+NEW_ATT = 4
+NEW_BARO = 8
+
 
 class ImuSample(NamedTuple):
     """Gyro and accelerometer, body FLU. The accelerometer measures specific force,

@@ -22,12 +22,10 @@ import dataclasses
 import math
 import typing
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
-from heli_common.config import ConfigError, build, load, resolve, spec
+from heli_common.config import SimParam, build, spec
 from heli_common.mavlink.wire import f32
-from heli_common.world import SimParam
 
 Vec3 = tuple[float, float, float]
 ZERO3: Vec3 = (0.0, 0.0, 0.0)
@@ -119,20 +117,6 @@ class Sensors:
     attitude: Attitude = spec(default=Attitude())
     baro: Baro = spec(default=Baro())
     source: str = spec(default="")  # the file it came from (filled in by load)
-
-    @classmethod
-    def load(cls, path: str | Path) -> Sensors:
-        """A sensors file as given, or a preset name from ``configs/sensors/`` (falling back
-        to the built-in :data:`PRESETS` when no such file exists)."""
-        p = Path(path)
-        if not p.suffix and not p.is_file():
-            p = Path("sensors") / f"{path}.toml"
-            if str(path) in PRESETS:
-                try:
-                    resolve(p)
-                except ConfigError:  # no such file: the built-in numbers
-                    return preset(str(path))
-        return dataclasses.replace(load(cls, p), source=str(p))
 
     @property
     def on(self) -> bool:

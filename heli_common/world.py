@@ -18,8 +18,16 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from heli_common.airframe import Airframe
-from heli_common.config import ConfigError, load, spec
+from heli_common.config import ConfigError, SimParam, load, spec
 from heli_common.mavlink.wire import f32
+from heli_common.sensors import (
+    SEED_MAX,
+    SIM_SENSOR_PARAM_NAMES,
+    SIM_SENSOR_PARAMS,
+    Sensors,
+    sensor_sim_values,
+    with_sensor_param,
+)
 
 Channels = tuple[float, float, float, float]  # theta_m, theta_t, eps, eta
 ZERO4: Channels = (0.0, 0.0, 0.0, 0.0)
@@ -165,7 +173,7 @@ class Disturbance:
 @dataclass(frozen=True)
 class World:
     name: str = spec(default="calm")
-    seed: int = spec("", 0, 2**63 - 1, default=0)
+    seed: int = spec("", 0, SEED_MAX, default=0)
     wind: Wind = spec(default=Wind())
     turbulence: Turbulence = spec(default=Turbulence())
     gust: Gust = spec(default=Gust())
@@ -173,6 +181,8 @@ class World:
     servos: Servos = spec(default=Servos())
     mismatch: Mismatch = spec(default=Mismatch())
     disturbance: Disturbance = spec(default=Disturbance())
+    # what the autopilot measures (off: it is handed the true state, as in the paper)
+    sensors: Sensors = spec(default=Sensors())
     source: str = spec(default="")  # the file it came from (filled in by load)
 
     @classmethod
@@ -185,7 +195,16 @@ class World:
         if w.air_matters and not (w.air.fuselage or w.air.rotor_inflow):
             raise ConfigError(f"{p}: wind, gust or turbulence set but [air] has neither fuselage "
                               "nor rotor_inflow on: the air would not act on the vehicle")  # fmt: skip
-        return dataclasses.replace(w, source=str(p))
+        if w.sensors.seed not in (0, w.seed) or w.sensors.name != Sensors().name or w.sensors.source:
+            raise ConfigError(f"{p}: [sensors] takes no seed, name or source of its own: the "
+                              "world's seed drives every random stream")  # fmt: skip
+        return dataclasses.replace(w, source=str(p), sensors=dataclasses.replace(w.sensors, seed=w.seed))
+
+    @property
+    def sensing(self) -> bool:
+        """The autopilot flies on measurements through its estimator (any sensor error
+        model or failure on); otherwise it is handed the true state."""
+        return self.sensors.on
 
     @property
     def air_matters(self) -> bool:
@@ -208,6 +227,8 @@ class World:
             value = getattr(self, part)
             if value != type(value)():
                 out[part] = dataclasses.asdict(value)
+        if self.sensing:
+            out["sensors"] = {k: v for k, v in self.sensors.describe().items() if k not in ("name", "seed")}
         if design is not None and self.mismatch.on:
             base = Path(self.source).parent if self.source else None
             plant, ctrl = self.mismatch.apply(design, base).constants(), design.constants()
@@ -229,20 +250,9 @@ CALM = World()
 LINKAGE_RAD_PER_RAD: Channels = (0.255, 0.446, 0.178, 0.178)
 
 
-@dataclass(frozen=True)
-class SimParam:
-    """A world setting a ground station reads and sets as a MAVLink parameter."""
-
-    name: str
-    lo: float
-    hi: float
-    unit: str
-    description: str
-
-
 #: ArduPilot's SIM_ names where it has the setting (SIM_WIND_TURB and SIM_SERVO_SPEED with
 #: this bench's models behind them; see docs/world.md), this bench's own otherwise.
-SIM_PARAMS: tuple[SimParam, ...] = (
+WORLD_SIM_PARAMS: tuple[SimParam, ...] = (
     SimParam("SIM_WIND_SPD", 0.0, 100.0, "m/s", "steady wind speed"),
     SimParam("SIM_WIND_DIR", -360.0, 360.0, "deg", "direction the wind comes from"),
     SimParam("SIM_WIND_DIR_Z", -90.0, 90.0, "deg", "wind elevation (90: updraft)"),
@@ -254,6 +264,8 @@ SIM_PARAMS: tuple[SimParam, ...] = (
     SimParam("SIM_SERVO_DELAY", 0.0, 1.0, "s", "servo transport delay"),
     SimParam("SIM_SERVO_TAU", 0.0, 5.0, "s", "servo first-order lag"),
 )
+#: every live knob of a world: the physics' above and the sensors' (docs/sensors.md)
+SIM_PARAMS = WORLD_SIM_PARAMS + SIM_SENSOR_PARAMS
 SIM_PARAM_NAMES = frozenset(p.name for p in SIM_PARAMS)
 
 
@@ -277,13 +289,17 @@ def sim_values(w: World) -> dict[str, float]:
         "SIM_SERVO_SPEED": _servo_speed(w.servos),
         "SIM_SERVO_DELAY": w.servos.delay_s[2],
         "SIM_SERVO_TAU": w.servos.tau_s[2],
+        **sensor_sim_values(w.sensors),
     }
 
 
 def with_sim_param(w: World, name: str, value: float) -> World:
     """``w`` with one SIM_ parameter set (ValueError: unknown name or out of range). A
     servo parameter sets all four servos; the speed goes through each linkage ratio."""
-    spec_ = next((p for p in SIM_PARAMS if p.name == name), None)
+    if name in SIM_SENSOR_PARAM_NAMES:
+        sensors = with_sensor_param(w.sensors, name, value)
+        return w if sensors is w.sensors else dataclasses.replace(w, sensors=sensors)
+    spec_ = next((p for p in WORLD_SIM_PARAMS if p.name == name), None)
     if spec_ is None:
         raise ValueError(f"unknown world parameter {name!r}")
     if not (math.isfinite(value) and spec_.lo <= value <= spec_.hi):

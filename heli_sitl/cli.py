@@ -12,7 +12,8 @@ import sys
 from pathlib import Path
 
 from heli_common import cli_args as arg
-from heli_common.defaults import Exit, ports
+from heli_common.defaults import HOME, Exit, ports
+from heli_common.geo import parse_geo_point
 from heli_common.process import UsageError, run_main
 from heli_common.servo_link import add_servo_args
 from heli_common.world import World
@@ -29,8 +30,9 @@ PORTS = ports()
 def _simulate(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
+    from autopilot.estimation.config import EstimatorConfig
     from autopilot.scenario import Scenario
-    from ground.plots import plot_figures, plot_world
+    from ground.plots import plot_estimate, plot_figures, plot_world
     from heli_sitl.closed_loop import SimOptions, simulate
 
     scenario = Scenario.load(args.scenario, gains=args.gains)
@@ -42,6 +44,7 @@ def _simulate(args: argparse.Namespace) -> int:
         plant_substeps=args.plant_substeps,
         duration_s=args.duration_s,
         world=World.load(args.world) if args.world else None,
+        estimator=EstimatorConfig.load(args.estimator) if args.estimator else EstimatorConfig(),
     )
     with tqdm(
         total=100, desc=f"simulate {scenario.run.name}", unit="%", disable=args.quiet,
@@ -61,6 +64,11 @@ def _simulate(args: argparse.Namespace) -> int:
                                title=f"{title}, world {opts.world.name if opts.world else ''}"))  # fmt: skip
         record.write_world_csv(out / "world.csv")
         figs.append(out / "world.csv")
+    if record.x_hat is not None and record.est_log is not None and record.write_est_csv(out / "est.csv"):
+        world_name = opts.world.name if opts.world else ""
+        figs.append(plot_estimate(record.t_s, record.x[:, 0:3], record.x_hat[:, 0:3], record.est_log[:, 0:3],
+                                  out, title=f"{title}, world {world_name}"))  # fmt: skip
+        figs.append(out / "est.csv")
     rms = summary["rms_pos_err_m"]
     print("RMS 3-D position error: " + ", ".join(f"[{k}] s {v:.4f} m" for k, v in rms.items()))
     jump = summary["max_pos_err_40_45_m"]  # the paper's slope jump: its scenario only
@@ -100,7 +108,8 @@ def _run(args: argparse.Namespace) -> int:
     cfg = SimConfig(args.mode, args.rate_hz or rate, args.duration_s, args.timeout_s,
                     hold_until_armed=args.hold_until_armed)  # fmt: skip
     world = World.load(args.world) if args.world else None
-    plant = Plant(airframe, x0, substeps=args.plant_substeps, world=world)
+    plant = Plant(airframe, x0, substeps=args.plant_substeps, world=world, step_s=1.0 / cfg.rate_hz,
+                  home=parse_geo_point(args.home, "--home"))  # fmt: skip
     try:
         # the plant is component 51 of the vehicle; it takes commands from system 1 only
         link = MavlinkUdp((LOOPBACK, args.port), (LOOPBACK, args.autopilot_port), system_id=1,
@@ -211,6 +220,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--quiet", action="store_true", help="no progress bar")
     s.add_argument("--world", default=None, metavar="FILE|PRESET", help=WORLD_HELP)
     s.add_argument("--gains", default=None, metavar="FILE", help=GAINS_HELP)
+    s.add_argument("--estimator", default=None, metavar="FILE",
+                   help="estimator tuning (TOML, docs/estimator.md) for a world with [sensors]")
     s.set_defaults(func=_simulate)
 
     r = sub.add_parser("run", help="the plant process (sim link on UDP loopback)")
@@ -231,6 +242,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--hold-until-armed", action="store_true",
                    help="in-air start: do not step until the autopilot arms")
     r.add_argument("--world", default=None, metavar="FILE|PRESET", help=WORLD_HELP)
+    r.add_argument("--home", default=f"{HOME.lat_deg},{HOME.lon_deg},{HOME.alt_amsl_m}",
+                   help="lat,lon,alt the GPS reports about (give heli-autopilot the same --home)")
     r.add_argument("-v", "--verbose", action="store_true")
     r.set_defaults(func=_run)
 

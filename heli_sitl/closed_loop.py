@@ -18,6 +18,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from autopilot.estimation.config import EstimatorConfig
+from autopilot.estimation.kf import K_N_BUF, N_EST_LOG, est_init, est_tick, log_tick, make_params, state_size
 from autopilot.metrics import FlightRecord
 from autopilot.scenario import Scenario
 from autopilot.tlc.controller import (
@@ -28,13 +30,17 @@ from autopilot.tlc.controller import (
 )
 from heli_common.airframe import PlantConstants
 from heli_common.jit import njit
-from heli_common.state import N_PITCH, FloatArray
+from heli_common.measurements import N_OUT
+from heli_common.sensor_wire import N_HOME
+from heli_common.state import N_PITCH, N_STATE, FloatArray
 from heli_common.world import World
 from heli_sitl.plant.model import Plant, accept_pitches, plant_step
+from heli_sitl.plant.sensors.sensing import Sensing, sense
 from heli_sitl.plant.world.model import N_WP, N_WS, WS_AIR, WS_PITCH, AirConstants, world_plant_step
 
 Progress = Callable[[int, int], None]
 CHUNK_TICKS = 500  # progress granularity; each chunk is one compiled call
+LS_ON_GROUND = 0  # the loop's own state across chunks: the vehicle rests on the ground
 
 
 @dataclass(frozen=True)
@@ -44,6 +50,7 @@ class SimOptions:
     plant_substeps: int | None = None
     duration_s: float | None = None
     world: World | None = None  # None: the paper's ideal world
+    estimator: EstimatorConfig = EstimatorConfig()  # used when the world's sensors are on
 
 
 @njit
@@ -73,27 +80,49 @@ def _run_ticks(
     dryden: FloatArray,
     airs: FloatArray,
     applied: FloatArray,
+    sensing: bool,
+    snp: FloatArray,
+    sns: FloatArray,
+    meas: FloatArray,
+    home: FloatArray,
+    eparams: FloatArray,
+    est: FloatArray,
+    use_baro: bool,
+    x_hats: FloatArray,
+    est_log: FloatArray,
+    loop_s: FloatArray,
 ) -> FloatArray:
     x = x0.copy()
     out = np.empty(N_PITCH)
     diag = np.zeros(N_DIAG)
+    x_hat = np.empty(x0.shape[0])
     dt = k.dt_s
     for i in range(k0, k1):
-        tlc_kernel(k, ctrl_state, x, refs[i], False, out, diag)
+        if sensing:
+            # the controller flies on the estimate from what the sensors measured at t[i]
+            resting = i == 0 or loop_s[LS_ON_GROUND] != 0.0
+            mask = sense(t[i], x, held, c, resting, in_world, air, wp, ws, snp, sns, meas, home)
+            gps = est_tick(eparams, est, t[i], meas, mask, use_baro, x_hat)
+            x_hats[i] = x_hat
+            log_tick(est, gps, est_log[i])
+            tlc_kernel(k, ctrl_state, x_hat, refs[i], False, out, diag)
+        else:
+            tlc_kernel(k, ctrl_state, x, refs[i], False, out, diag)
         xs[i] = x
         us[i] = out
         diags[i] = diag
         if i < n_last:
             accept_pitches(out, lo, hi, held)
             if in_world:
-                x, _ = world_plant_step(
+                x, on_ground = world_plant_step(
                     t[i], x, held, c, air, dt, n_sub, True, wp, ws, servo_p, servo_s, dryden
                 )
                 # the truth of the hold that led to the next state, as the plant reports it
                 airs[i + 1] = ws[WS_AIR : WS_AIR + 3]
                 applied[i + 1] = ws[WS_PITCH : WS_PITCH + N_PITCH]
             else:
-                x, _ = plant_step(t[i], x, held, c, dt, n_sub, True)
+                x, on_ground = plant_step(t[i], x, held, c, dt, n_sub, True)
+            loop_s[LS_ON_GROUND] = 1.0 if on_ground else 0.0
     return x
 
 
@@ -103,14 +132,13 @@ def simulate(
     run = scenario.run
     rate_hz = opts.rate_hz or run.rate_hz
     duration = opts.duration_s or run.duration_s
-    ctrl = TLController(
-        scenario.airframe, scenario.gains, rate_hz, opts.feedforward or run.feedforward
-    )
+    ctrl = TLController(scenario.airframe, scenario.gains, rate_hz, opts.feedforward or run.feedforward)
     plant = Plant(
         scenario.airframe,
         scenario.initial.state().to_array(),
         substeps=opts.plant_substeps or run.plant_substeps,
         world=opts.world,
+        step_s=1.0 / rate_hz,
     )
     n = round(duration * rate_hz)
     t = np.arange(n + 1) / rate_hz
@@ -129,20 +157,26 @@ def simulate(
         accept_pitches(first, plant.lo, plant.hi, u0)
         plant.world.prepare(1.0 / rate_hz / plant.substeps, u0, np.column_stack([plant.lo, plant.hi]))
 
+    sn = SensingArrays.build(plant, opts.estimator, rate_hz, n)
+
     def ticks(k0: int, k1: int, state: FloatArray, held: FloatArray, ws: FloatArray, servo_s: FloatArray,
-              x: FloatArray) -> FloatArray:  # fmt: skip
+              x: FloatArray, sns: FloatArray, meas: FloatArray, est: FloatArray,
+              loop_s: FloatArray) -> FloatArray:  # fmt: skip
         return _run_ticks(
             ctrl.constants, state, plant.constants, plant.lo, plant.hi, held, x, refs, t, k0, k1, n,
             plant.substeps, xs, us, diags, plant.world is not None, w.air, w.wp, ws, w.servo_p,
-            servo_s, w.dryden, airs, applied,
+            servo_s, w.dryden, airs, applied, sn.on, sn.snp, sns, meas, sn.home, sn.eparams, est,
+            sn.use_baro, sn.x_hats, sn.log, loop_s,
         )  # fmt: skip
 
+    loop_s = np.zeros(1)
     # load (or compile) the kernels outside the timed flight, on throwaway copies
-    ticks(0, 1, ctrl.state.copy(), plant.u.copy(), w.ws.copy(), w.servo_s.copy(), x)
+    ticks(0, 1, ctrl.state.copy(), plant.u.copy(), w.ws.copy(), w.servo_s.copy(), x, sn.sns.copy(),
+          sn.meas.copy(), sn.est.copy(), loop_s.copy())  # fmt: skip
     wall0 = time.perf_counter()
     for k0 in range(0, n + 1, CHUNK_TICKS):
         k1 = min(n + 1, k0 + CHUNK_TICKS)
-        x = ticks(k0, k1, ctrl.state, plant.u, w.ws, w.servo_s, x)
+        x = ticks(k0, k1, ctrl.state, plant.u, w.ws, w.servo_s, x, sn.sns, sn.meas, sn.est, loop_s)
         if progress is not None:
             progress(k1 - 1, n)
     wall = time.perf_counter() - wall0
@@ -150,12 +184,60 @@ def simulate(
         "scenario": run.name, "rate_hz": rate_hz, "feedforward": ctrl.feedforward.value,
         "plant_substeps": plant.substeps, "gains": scenario.gains.name,
     }  # fmt: skip
-    if plant.world is not None:
-        extra["world"] = plant.world.world.describe(scenario.airframe)
+    if plant.world is not None or sn.on:
+        extra["world"] = plant.world_config.describe(scenario.airframe)
+    if sn.on:
+        extra["estimator"] = dataclasses.asdict(opts.estimator)
     rec = FlightRecord.from_ticks(t, xs, refs, us, diags, wall, extra)
     if plant.world is not None:
         rec = dataclasses.replace(rec, air_nwu_m_s=airs, servo_rad=applied)
+    if sn.on:
+        rec = dataclasses.replace(rec, x_hat=sn.x_hats, est_log=sn.log)
     return rec
+
+
+@dataclass
+class SensingArrays:
+    """The arrays of the sensors and the estimator for the compiled loop (placeholders,
+    never read, when the world's sensors are off)."""
+
+    on: bool
+    snp: FloatArray
+    sns: FloatArray
+    meas: FloatArray
+    home: FloatArray
+    eparams: FloatArray
+    est: FloatArray
+    use_baro: bool
+    x_hats: FloatArray
+    log: FloatArray
+
+    @classmethod
+    def build(cls, plant: Plant, cfg: EstimatorConfig, rate_hz: float, n: int) -> SensingArrays:
+        s = plant.sensing
+        if s is None:
+            return cls.off()
+        eparams = make_params(cfg, rate_hz)
+        m = s.model
+        # the plant sampled its sensors at t = 0 when it was built; the loop samples them
+        # itself, tick by tick, from a fresh start of the same configuration
+        fresh = Sensing.build(m.config, m.step_s, m.gravity_m_s2, plant.home)
+        est = np.zeros(state_size(int(eparams[K_N_BUF])))
+        est_init(eparams, est, plant.x)
+        return cls(True, fresh.model.params, fresh.model.state, fresh.meas, fresh.home, eparams, est,
+                   cfg.use_baro, np.full((n + 1, plant.x.size), np.nan),
+                   np.full((n + 1, N_EST_LOG), np.nan))  # fmt: skip
+
+    @classmethod
+    def off(cls) -> SensingArrays:
+        z = np.zeros(1)
+        return cls(False, z, z, np.zeros(N_OUT), np.zeros(N_HOME), z, z, False, np.zeros((1, N_STATE)),
+                   np.zeros((1, N_EST_LOG)))  # fmt: skip
+
+    def args(self) -> tuple[object, ...]:
+        """The loop's sensing arguments, in order (its own arrays)."""
+        return (self.on, self.snp, self.sns, self.meas, self.home, self.eparams, self.est, self.use_baro,
+                self.x_hats, self.log)  # fmt: skip
 
 
 @dataclass(frozen=True)

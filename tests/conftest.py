@@ -18,7 +18,7 @@ from autopilot.tlc.controller import N_DIAG, TLCConstants, TLController
 from autopilot.tlc.gains import Gains
 from heli_common.airframe import Airframe, PlantConstants
 from heli_common.state import N_PITCH, N_STATE, PSI, Z_U, FloatArray
-from heli_sitl.closed_loop import CALM_ARRAYS, _run_ticks
+from heli_sitl.closed_loop import CALM_ARRAYS, SensingArrays, _run_ticks
 from heli_sitl.plant.model import Plant
 
 # The first call of a compiled function loads (or compiles) it: no per-example deadline.
@@ -80,6 +80,7 @@ def fly(
         k, ctrl_state, plant.constants, plant.lo, plant.hi, held, np.asarray(x0, dtype=float),
         refs, t, 0, n + 1, n + 1, plant.substeps, xs, us, diags, False, w.air, w.wp, w.ws,
         w.servo_p, w.servo_s, w.dryden, np.zeros((n + 1, 3)), np.zeros((n + 1, N_PITCH)),
+        *SensingArrays.off().args(), np.zeros(1),
     )  # fmt: skip
     return Flight(xs, us, diags, t, x_next)
 

@@ -43,7 +43,7 @@ from heli_common.sensors import (
     with_sensor_param,
 )
 from heli_common.state import EULER, N_STATE, OMEGA, PHI, POS, PSI, THETA, U_F, Z_U, FloatArray
-from heli_common.world import SIM_PARAM_NAMES
+from heli_common.world import SIM_PARAM_NAMES, WORLD_SIM_PARAMS, World
 from heli_sitl.plant.sensors import model
 from heli_sitl.plant.sensors.model import (
     N_OUT,
@@ -537,24 +537,38 @@ def test_presets_build_and_carry_the_documented_numbers() -> None:
 
 
 def test_toml_round_trip_and_errors(tmp_path: Path) -> None:
+    """The sensors live in a world file's [sensors] table; the world's seed drives them."""
     f = tmp_path / "s.toml"
-    f.write_text('name = "t"\nseed = 4\n[gps]\non = true\nrate_hz = 10.0\nwander_h_m = 1.5\n'
-                 "[imu]\ngyro_bias_rad_s = [0.01, 0.0, -0.01]\n")  # fmt: skip
-    s = Sensors.load(f)
-    assert s.gps.on and s.gps.rate_hz == 10.0 and s.gps.wander_h_m == 1.5 and s.seed == 4
-    assert s.imu.gyro_bias_rad_s == (0.01, 0.0, -0.01) and s.source == str(f)
-    f.write_text("[gps]\nrate_hz = 0.0\n")
+    f.write_text('name = "t"\nseed = 4\n[sensors.gps]\non = true\nrate_hz = 10.0\nwander_h_m = 1.5\n'
+                 "[sensors.imu]\ngyro_bias_rad_s = [0.01, 0.0, -0.01]\n")  # fmt: skip
+    w = World.load(f)
+    s = w.sensors
+    assert s.gps.on and s.gps.rate_hz == 10.0 and s.gps.wander_h_m == 1.5 and s.seed == 4 and w.sensing
+    assert s.imu.gyro_bias_rad_s == (0.01, 0.0, -0.01) and not w.on  # no physics changed
+    f.write_text("[sensors.gps]\nrate_hz = 0.0\n")
     with pytest.raises(ConfigError, match="rate_hz"):
-        Sensors.load(f)
-    f.write_text("[baro]\nnoise = 1.0\n")
+        World.load(f)
+    f.write_text("[sensors.baro]\nnoise = 1.0\n")
     with pytest.raises(ConfigError, match="did you mean 'noise_m'"):
-        Sensors.load(f)
+        World.load(f)
+    f.write_text("seed = 2\n[sensors]\nseed = 3\n")
+    with pytest.raises(ConfigError, match="no seed"):
+        World.load(f)
+
+
+@pytest.mark.parametrize("name", sorted(PRESETS))
+def test_preset_files_are_the_documented_numbers(name: str) -> None:
+    """configs/world/NAME.toml holds exactly the preset's numbers (PRESETS documents them)."""
+    w = World.load(name)
+    assert w.sensors == dataclasses.replace(preset(name), name="ideal", seed=w.seed)
+    assert w.seed == PRESETS[name]["seed"] and w.sensing and not w.on
 
 
 def test_sim_param_round_trip() -> None:
     s = preset("noisy")
     assert set(sensor_sim_values(s)) == SIM_SENSOR_PARAM_NAMES
-    assert not SIM_SENSOR_PARAM_NAMES & SIM_PARAM_NAMES  # no clash with the world's knobs
+    assert SIM_SENSOR_PARAM_NAMES < SIM_PARAM_NAMES  # live knobs of the world file they sit in
+    assert not SIM_SENSOR_PARAM_NAMES & {p.name for p in WORLD_SIM_PARAMS}  # no clash
     values = {
         "SIM_GPS_HZ": 10.0, "SIM_GPS_LAG_MS": 150.0, "SIM_GPS_NOISE": 3.3, "SIM_GPS_DISABLE": 1.0,
         "SIM_ACC_RND": 0.2, "SIM_GYR_RND": 0.3, "SIM_BARO_RND": 0.7, "SIM_BARO_DRIFT": -0.01,

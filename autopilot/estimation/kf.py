@@ -37,7 +37,23 @@ from scipy.stats import chi2
 from autopilot.estimation.config import EstimatorConfig
 from heli_common.jit import njit
 from heli_common.kinematics import euler_rates, rot_body_to_earth, wrap_pi
-from heli_common.measurements import AttitudeSample, BaroSample, GpsFix, ImuSample
+from heli_common.measurements import (
+    NEW_ATT,
+    NEW_BARO,
+    NEW_GPS,
+    OUT_ACCEL,
+    OUT_ATT,
+    OUT_BARO_ALT,
+    OUT_BARO_T,
+    OUT_GPS_POS,
+    OUT_GPS_T,
+    OUT_GPS_VEL,
+    OUT_GYRO,
+    AttitudeSample,
+    BaroSample,
+    GpsFix,
+    ImuSample,
+)
 from heli_common.state import N_STATE, FloatArray
 
 # --- per-axis filter state [p, v, b] and the axes
@@ -124,6 +140,7 @@ M_NONE, M_PENDING, M_ACCEPTED, M_RESET = 0.0, 1.0, 2.0, 3.0
 
 # status of est_gps / est_baro
 ACCEPTED, REJECTED, RESET, TOO_OLD, BAD_INPUT, NOT_STARTED = 0, 1, 2, 3, 4, 5
+NO_FIX = -1  # est_tick: no new fix this tick
 # status of est_predict
 P_OK, P_FIRST, P_NO_ADVANCE, P_BAD_IMU = 0, 1, 2, 3
 
@@ -623,6 +640,55 @@ def est_output(st: FloatArray, x_out: FloatArray) -> None:
     for i in range(3):
         x_out[6 + i] = st[E_ATT + i]
         x_out[9 + i] = st[E_RATE + i]
+
+
+@njit
+def est_tick(
+    params: FloatArray, st: FloatArray, t_s: float, meas: FloatArray, mask: int, use_baro: bool,
+    x_out: FloatArray,
+) -> int:  # fmt: skip
+    """One tick on the measurement layout of :mod:`heli_common.measurements` (``meas`` holds
+    each sensor's latest sample, ``mask`` says which are new): predict with the latest IMU
+    sample (held between samples), the attitude sample if new; fuse a new GPS fix and (if
+    ``use_baro``) a new baro height at their validity times; write the estimate into
+    ``x_out``. The in-process loop and the autopilot process both call this. Returns the
+    GPS status (``NO_FIX`` when none was new)."""
+    att = meas[OUT_ATT : OUT_ATT + 3] if mask & NEW_ATT else np.full(3, math.nan)
+    est_predict(params, st, t_s, meas[OUT_GYRO : OUT_GYRO + 3], meas[OUT_ACCEL : OUT_ACCEL + 3], att)
+    status = NO_FIX
+    if mask & NEW_GPS:
+        status = est_gps(params, st, meas[OUT_GPS_T], meas[OUT_GPS_POS : OUT_GPS_POS + 3],
+                         meas[OUT_GPS_VEL : OUT_GPS_VEL + 3])  # fmt: skip
+    if use_baro and mask & NEW_BARO:
+        est_baro(params, st, meas[OUT_BARO_T], meas[OUT_BARO_ALT])
+    est_output(st, x_out)
+    return status
+
+
+#: what :func:`log_tick` writes per tick (est.csv): the filter's 1-sigma position and
+#: velocity (earth NWU), its acceleration bias, the GPS status of the tick (NO_FIX, ACCEPTED,
+#: REJECTED, RESET, ...), and for a tick with a fix its NIS and position innovation at the
+#: fix's validity time; the time since the last accepted fix
+EST_LOG_COLUMNS = (
+    "sd_pos_n", "sd_pos_w", "sd_pos_u", "sd_vel_n", "sd_vel_w", "sd_vel_u",
+    "bias_n", "bias_w", "bias_u", "gps_status", "nis", "innov_n", "innov_w", "innov_u", "since_fix_s",
+)  # fmt: skip
+N_EST_LOG = len(EST_LOG_COLUMNS)
+
+
+@njit
+def log_tick(st: FloatArray, gps_status: int, row: FloatArray) -> None:
+    """One row of :data:`EST_LOG_COLUMNS` for the tick just estimated."""
+    for a in range(3):
+        row[a] = math.sqrt(max(st[E_P + 9 * a], 0.0))
+        row[3 + a] = math.sqrt(max(st[E_P + 9 * a + 4], 0.0))
+        row[6 + a] = st[E_X + N_AX * a + I_B]
+    row[9] = gps_status
+    fix = gps_status != NO_FIX
+    row[10] = st[E_NIS] if fix else math.nan
+    for a in range(3):
+        row[11 + a] = st[E_INNOV_POS + a] if fix else math.nan
+    row[14] = st[E_T] - st[E_T_FIX]
 
 
 # ------------------------------------------------------------------ the Python wrapper

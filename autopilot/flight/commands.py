@@ -27,6 +27,7 @@ class Result(enum.Enum):
 class Severity(enum.Enum):
     INFO = "info"
     WARNING = "warning"
+    CRITICAL = "critical"  # a failsafe acted
 
 
 @dataclass(frozen=True)

@@ -53,6 +53,9 @@ class FlightConfig:
     home: GeoPoint
     limits: FlightLimits = FlightLimits()
     offboard_timeout_s: float = 1.0  # no setpoint for this long in offboard -> hold
+    # flying from sensors: GPS lost -> hold (on the dead-reckoned estimate), and after this
+    # long without GPS -> land, as PX4's and ArduPilot's position-loss failsafes do
+    gps_loss_land_after_s: float = 10.0
 
 
 @dataclass
@@ -81,6 +84,8 @@ class FlightManager:
         self._events: deque[c.Event] = deque(maxlen=EVENT_QUEUE)
         self._t = 0.0
         self._x: FloatArray = np.zeros(12)
+        self.gps_lost_since: float | None = None  # flight time the GPS was declared lost
+        self._nav_seen = (0, 0)  # rejected fixes and estimator resets already reported
 
     def set_mission_source(self, mission: Callable[[], tuple[MissionItem, ...]]) -> None:
         """Where the stored mission lives (the link that runs the mission protocol)."""
@@ -305,6 +310,39 @@ class FlightManager:
         if self._offboard is not None:
             self._offboard.received_t_s += gap_s
         self._say(c.Severity.WARNING, f"Control resumed after a {gap_s:.1f} s gap"[:50])
+
+    def navigation(self, t_s: float, x: FloatArray, gps_lost: bool, n_rejected: int, n_resets: int) -> None:
+        """The estimator's health, before each tick when flying from sensors. GPS lost in
+        flight: hold where the estimate is (it dead-reckons on the IMU), and land after
+        ``gps_loss_land_after_s`` without a fix; the operator is told each step, and of
+        rejected fixes (a glitch, a frozen or biased receiver) and estimator resets."""
+        self._t, self._x = t_s, x
+        rej, res = self._nav_seen
+        if n_resets > res:
+            self._say(c.Severity.WARNING, "GPS jump: position estimate reset")
+        elif n_rejected > rej and (n_rejected == 1 or n_rejected % 25 == 0):
+            self._say(c.Severity.WARNING, f"GPS fix rejected ({n_rejected} so far)")
+        self._nav_seen = (n_rejected, n_resets)
+        f = self.flight
+        if not gps_lost:
+            if self.gps_lost_since is not None:
+                self.gps_lost_since = None
+                self._say(c.Severity.INFO, "GPS back")
+            return
+        if self.gps_lost_since is None:
+            self.gps_lost_since = t_s
+            if f.armed and f.mode is not Mode.LAND and not landed(x):
+                self.mission_on_arm = False
+                self._offboard = None
+                f.hold(x, t_s)
+                self._say(c.Severity.CRITICAL, "GPS lost: holding position")
+            else:
+                self._say(c.Severity.WARNING, "GPS lost")
+            return
+        if f.armed and f.mode is Mode.HOLD and t_s - self.gps_lost_since >= self.cfg.gps_loss_land_after_s:
+            self._t, self._x = t_s, x
+            self._land(c.Land())
+            self._say(c.Severity.CRITICAL, f"GPS lost {self.cfg.gps_loss_land_after_s:.0f} s: landing")
 
     # -- the runner's ticks ------------------------------------------------------------
     def pre_tick(self, t_s: float, x: FloatArray) -> None:

@@ -3,17 +3,92 @@
 from __future__ import annotations
 
 import dataclasses
+import math
+
+import numpy as np
 
 from heli_common import frames, servo_map
 from heli_common.closing import Closing
-from heli_common.mavlink.fast import ActuatorOutputStatus, SimCodec, WindCov
+from heli_common.defaults import HOME
+from heli_common.geo import GeoPoint
+from heli_common.mavlink.fast import ActuatorOutputStatus, Ahrs2, HilGps, HilSensor, SimCodec, WindCov
 from heli_common.mavlink.sim_protocol import MAV_MODE_FLAG_SAFETY_ARMED, StateAssembler, StateSample, receive
 from heli_common.mavlink.udp import Address, MavlinkUdp
+from heli_common.measurements import (
+    N_OUT,
+    NEW_ATT,
+    NEW_BARO,
+    NEW_GPS,
+    NEW_IMU,
+    OUT_ACCEL,
+    OUT_ATT,
+    OUT_ATT_T,
+    OUT_BARO_ALT,
+    OUT_BARO_T,
+    OUT_GPS_POS,
+    OUT_GPS_T,
+    OUT_GPS_VEL,
+    OUT_GYRO,
+    OUT_IMU_T,
+)
+from heli_common.sensor_wire import BARO_FIELD, IMU_FIELDS, gps_from_wire, home_array
 from heli_common.state import FloatArray
 
 
+class Measurements:
+    """The vehicle's sensors as the sim link brings them (HIL_SENSOR, HIL_GPS, AHRS2, the
+    plant's frames and units: body FRD, NED, lat/lon about ``home``), gathered into the
+    measurement layout of :mod:`heli_common.measurements` (NWU/FLU, SI). New samples
+    accumulate in ``mask`` until a state takes them (:meth:`take`)."""
+
+    def __init__(self, home: GeoPoint) -> None:
+        self.home = home_array(home)
+        self.meas = np.full(N_OUT, math.nan)
+        self.mask = 0
+        self.t_s = 0.0
+        self.seen = False
+
+    def feed(self, msg: object) -> bool:
+        """Take one message if it is a sensor's; False otherwise."""
+        m = self.meas
+        if isinstance(msg, HilSensor):
+            self.seen = True
+            self.t_s = msg.time_usec / 1e6
+            if msg.fields_updated & IMU_FIELDS == IMU_FIELDS:
+                m[OUT_IMU_T] = self.t_s
+                m[OUT_ACCEL : OUT_ACCEL + 3] = frames.frd_to_flu((msg.xacc, msg.yacc, msg.zacc))
+                m[OUT_GYRO : OUT_GYRO + 3] = frames.frd_to_flu((msg.xgyro, msg.ygyro, msg.zgyro))
+                self.mask |= NEW_IMU
+            if msg.fields_updated & BARO_FIELD:
+                m[OUT_BARO_T] = self.t_s
+                m[OUT_BARO_ALT] = msg.pressure_alt
+                self.mask |= NEW_BARO
+            return True
+        if isinstance(msg, HilGps):
+            m[OUT_GPS_T] = msg.time_usec / 1e6
+            gps_from_wire(msg.lat, msg.lon, msg.alt, msg.vn, msg.ve, msg.vd, self.home,
+                          m[OUT_GPS_POS : OUT_GPS_POS + 3], m[OUT_GPS_VEL : OUT_GPS_VEL + 3])  # fmt: skip
+            self.mask |= NEW_GPS
+            return True
+        if isinstance(msg, Ahrs2):
+            m[OUT_ATT_T] = self.t_s
+            # (roll, pitch, yaw) -> (phi, theta, psi): the same sign change as a vector's
+            m[OUT_ATT : OUT_ATT + 3] = frames.frd_to_flu((msg.roll, msg.pitch, msg.yaw))
+            self.mask |= NEW_ATT
+            return True
+        return False
+
+    def take(self, s: StateSample) -> StateSample:
+        """``s`` with the measurements (once the plant has sent any); the mask restarts."""
+        if not self.seen:
+            return s
+        out = dataclasses.replace(s, meas=self.meas.copy(), meas_mask=self.mask, meas_t_s=self.t_s)
+        self.mask = 0
+        return out
+
+
 class SimLink(Closing):
-    def __init__(self, local: Address, plant: Address, limits: FloatArray) -> None:
+    def __init__(self, local: Address, plant: Address, limits: FloatArray, home: GeoPoint = HOME) -> None:
         self.udp = MavlinkUdp(local, plant, system_id=1, component_id=1, accept_system=1)
         self.codec = SimCodec(system_id=1, component_id=1)
         self.limits = limits
@@ -21,6 +96,7 @@ class SimLink(Closing):
         # the world's truth of the latest state (see StateSample), by its time stamp
         self._air: tuple[int, tuple[float, float, float]] | None = None
         self._servo: tuple[int, tuple[float, float, float, float]] | None = None
+        self.measurements = Measurements(home)
 
     def latest_state(self, timeout_s: float = 0.0, spin_s: float = 0.0) -> StateSample | None:
         """The newest complete state queued (waiting up to ``timeout_s`` for one)."""
@@ -33,12 +109,16 @@ class SimLink(Closing):
                 a = msg.actuator
                 self._servo = (msg.time_usec, (a[0], a[1], a[2], a[3]))
                 continue
+            if self.measurements.feed(msg):
+                continue
             s = self.assembler.feed(msg)
             if s is not None:
                 newest = s
         if newest is not None and self._air is not None and self._air[0] == newest.t_us:
             servo = self._servo[1] if self._servo is not None and self._servo[0] == newest.t_us else None
             newest = dataclasses.replace(newest, air_nwu_m_s=self._air[1], servo_rad=servo)
+        if newest is not None:
+            newest = self.measurements.take(newest)
         return newest
 
     def send_pitches(self, t_us: int, pitches_rad: FloatArray, armed: bool) -> None:

@@ -1,7 +1,8 @@
-"""Fast MAVLink 2 codec for the four messages of the sim link, byte-compatible with pymavlink.
+"""Fast MAVLink 2 codec for the messages of the sim link, byte-compatible with pymavlink.
 
 Every lockstep tick the plant sends one datagram (HIL_STATE_QUATERNION, ATTITUDE,
-LOCAL_POSITION_NED) and the autopilot answers with one HIL_ACTUATOR_CONTROLS. pymavlink's
+LOCAL_POSITION_NED; or its sensors: HIL_SENSOR, HIL_GPS, AHRS2) and the autopilot answers
+with one HIL_ACTUATOR_CONTROLS. pymavlink's
 generic packer and parser spend 30-60 us per datagram in Python (message objects, per-byte
 parser state, dynamic field ordering); this module spends a few microseconds by knowing the
 four layouts in advance: one precompiled ``struct.Struct`` per payload, CRC-16/MCRF4XX from
@@ -23,6 +24,14 @@ the MAVLink generator orders them) come from pymavlink 2.4.50's ``common`` diale
     PARAM_SET            (23,  CRC_EXTRA 168): <fBB16sB            23 bytes (world settings, rare)
     WIND_COV             (231, CRC_EXTRA 105): <Qffffffff          40 bytes (the world's air)
     ACTUATOR_OUTPUT_STATUS(375, CRC_EXTRA 251): <QI32f            140 bytes (servo positions)
+    HIL_SENSOR           (107, CRC_EXTRA 108): <Q13fIB             65 bytes (IMU, baro)
+    HIL_GPS              (113, CRC_EXTRA 124): <QiiiHHHhhhHBBBH    39 bytes (GPS fix)
+    AHRS2                (178, CRC_EXTRA 47):  <ffffii             24 bytes (attitude source)
+
+Extension fields (HIL_SENSOR ``id``; HIL_GPS ``id``, ``yaw``) follow the base fields in
+their declared order, unsorted; pymavlink packs them in MAVLink 2 and then truncates, and
+so does this module. AHRS2 is an ArduPilot message (``ardupilotmega`` dialect, not
+``common``); its id and CRC_EXTRA are the same in every dialect that defines it.
 
 Decoding walks a datagram frame by frame and never raises: frames with a bad CRC, a
 declared length running past the datagram, or an unknown message id are counted and
@@ -33,19 +42,26 @@ and which answer ``get_type()``, so code written for pymavlink messages reads th
 
 from __future__ import annotations
 
+import math
 import struct
 from collections.abc import Callable, Iterable
 from typing import Final, NamedTuple, TypeAlias
 
 __all__ = [
     "CRC_BACKEND",
+    "MSG_ID_AHRS2",
     "MSG_ID_ATTITUDE",
     "MSG_ID_HIL_ACTUATOR_CONTROLS",
+    "MSG_ID_HIL_GPS",
+    "MSG_ID_HIL_SENSOR",
     "MSG_ID_HIL_STATE_QUATERNION",
     "MSG_ID_LOCAL_POSITION_NED",
+    "Ahrs2",
     "Attitude",
     "Decoded",
     "HilActuatorControls",
+    "HilGps",
+    "HilSensor",
     "HilStateQuaternion",
     "LocalPositionNed",
     "SimCodec",
@@ -60,6 +76,9 @@ MSG_ID_HIL_STATE_QUATERNION: Final = 115
 MSG_ID_PARAM_SET: Final = 23
 MSG_ID_WIND_COV: Final = 231
 MSG_ID_ACTUATOR_OUTPUT_STATUS: Final = 375
+MSG_ID_HIL_SENSOR: Final = 107
+MSG_ID_HIL_GPS: Final = 113
+MSG_ID_AHRS2: Final = 178
 
 _CRC_EXTRA_ATT: Final = 39
 _CRC_EXTRA_LPN: Final = 185
@@ -68,6 +87,9 @@ _CRC_EXTRA_HIL: Final = 4
 _CRC_EXTRA_PARAM_SET: Final = 168
 _CRC_EXTRA_WIND_COV: Final = 105
 _CRC_EXTRA_AOS: Final = 251
+_CRC_EXTRA_SENS: Final = 108
+_CRC_EXTRA_GPS: Final = 124
+_CRC_EXTRA_AHRS2: Final = 47
 # msgid -> CRC_EXTRA, the per-message seed that makes a layout change fail the CRC
 _CRC_EXTRA: Final[dict[int, int]] = {
     MSG_ID_ATTITUDE: _CRC_EXTRA_ATT,
@@ -77,6 +99,9 @@ _CRC_EXTRA: Final[dict[int, int]] = {
     MSG_ID_PARAM_SET: _CRC_EXTRA_PARAM_SET,
     MSG_ID_WIND_COV: _CRC_EXTRA_WIND_COV,
     MSG_ID_ACTUATOR_OUTPUT_STATUS: _CRC_EXTRA_AOS,
+    MSG_ID_HIL_SENSOR: _CRC_EXTRA_SENS,
+    MSG_ID_HIL_GPS: _CRC_EXTRA_GPS,
+    MSG_ID_AHRS2: _CRC_EXTRA_AHRS2,
 }
 
 _STX_V2: Final = 0xFD
@@ -94,6 +119,14 @@ _ACT: Final = struct.Struct("<QQ16fB")
 _PSET: Final = struct.Struct("<fBB16sB")
 _WCOV: Final = struct.Struct("<Qffffffff")
 _AOS: Final = struct.Struct("<QI32f")
+# time_usec, xacc..zgyro, xmag..zmag, abs_pressure, diff_pressure, pressure_alt, temperature,
+# fields_updated, id (extension)
+_SENS: Final = struct.Struct("<Q13fIB")
+# time_usec, lat, lon, alt, eph, epv, vel, vn, ve, vd, cog, fix_type, satellites_visible,
+# id (extension), yaw (extension)
+_GPS: Final = struct.Struct("<QiiiHHHhhhHBBBH")
+# roll, pitch, yaw, altitude, lat, lng
+_AHRS2: Final = struct.Struct("<ffffii")
 # after the magic byte: len, incompat, compat, seq, sysid, compid, msgid low 16, msgid high 8
 _HDR: Final = struct.Struct("<BBBBBBHB")
 _U16: Final = struct.Struct("<H")
@@ -104,6 +137,14 @@ _SIZE_ACT: Final = _ACT.size
 _SIZE_PSET: Final = _PSET.size
 _SIZE_WCOV: Final = _WCOV.size
 _SIZE_AOS: Final = _AOS.size
+_SIZE_SENS: Final = _SENS.size
+_SIZE_GPS: Final = _GPS.size
+_SIZE_AHRS2: Final = _AHRS2.size
+# HIL_GPS fields the sim link does not know: fix quality (3D fix, accuracies and course
+# unknown as UINT16_MAX, a plausible satellite count)
+_GPS_FIX_3D: Final = 3
+_GPS_UNKNOWN_U16: Final = 0xFFFF
+_GPS_SATELLITES: Final = 10
 
 
 def _crc_table() -> tuple[int, ...]:
@@ -258,15 +299,92 @@ class ActuatorOutputStatus(NamedTuple):
         return "ACTUATOR_OUTPUT_STATUS"
 
 
+class HilSensor(NamedTuple):
+    msgid: int
+    sysid: int
+    compid: int
+    seq: int
+    time_usec: int
+    xacc: float
+    yacc: float
+    zacc: float
+    xgyro: float
+    ygyro: float
+    zgyro: float
+    xmag: float
+    ymag: float
+    zmag: float
+    abs_pressure: float
+    diff_pressure: float
+    pressure_alt: float
+    temperature: float
+    fields_updated: int
+    id: int
+
+    def get_type(self) -> str:
+        return "HIL_SENSOR"
+
+
+class HilGps(NamedTuple):
+    msgid: int
+    sysid: int
+    compid: int
+    seq: int
+    time_usec: int
+    fix_type: int
+    lat: int
+    lon: int
+    alt: int
+    eph: int
+    epv: int
+    vel: int
+    vn: int
+    ve: int
+    vd: int
+    cog: int
+    satellites_visible: int
+    id: int
+    yaw: int
+
+    def get_type(self) -> str:
+        return "HIL_GPS"
+
+
+class Ahrs2(NamedTuple):
+    msgid: int
+    sysid: int
+    compid: int
+    seq: int
+    roll: float
+    pitch: float
+    yaw: float
+    altitude: float
+    lat: int
+    lng: int
+
+    def get_type(self) -> str:
+        return "AHRS2"
+
+
 Decoded: TypeAlias = (
-    HilStateQuaternion | Attitude | LocalPositionNed | HilActuatorControls | ParamSet | WindCov
+    HilStateQuaternion
+    | Attitude
+    | LocalPositionNed
+    | HilActuatorControls
+    | ParamSet
+    | WindCov
     | ActuatorOutputStatus
+    | HilSensor
+    | HilGps
+    | Ahrs2
 )
 
 # tuple.__new__ skips the NamedTuple's generated Python __new__ (half the cost of a result)
 _new = tuple.__new__
 # zero padding for MAVLink 2 truncated payloads, indexed by the number of missing bytes
-_PAD: Final[tuple[bytes, ...]] = tuple(bytes(k) for k in range(max(_SIZE_HIL, _SIZE_ACT, _SIZE_AOS) + 1))
+_PAD: Final[tuple[bytes, ...]] = tuple(
+    bytes(k) for k in range(max(_SIZE_HIL, _SIZE_ACT, _SIZE_AOS, _SIZE_SENS, _SIZE_GPS, _SIZE_AHRS2) + 1)
+)
 
 
 def hil_alt_vel(pos_ned_m: Iterable[float], vel_ned_m_s: Iterable[float]) -> tuple[int, tuple[int, int, int]]:
@@ -284,11 +402,12 @@ def _i16(v: float) -> int:
 class SimCodec:
     """Encoder (with its own wrapping sequence number) and decoder (with drop counters).
 
-    ``seq`` is the sequence number of the next frame encoded; ``encode_state`` uses three.
+    ``seq`` is the sequence number of the next frame encoded; ``encode_state`` uses three,
+    ``encode_sensors`` one to three.
     Counters (never reset by the codec): ``decoded`` frames returned, ``bad_crc`` (a complete
     frame of a known message whose CRC does not match: corruption or a wrong length byte),
     ``truncated`` (header or declared length runs past the datagram end), ``unknown`` (a
-    message id other than the four: its CRC cannot be checked), ``unsupported`` (a frame with
+    message id the codec does not know: its CRC cannot be checked), ``unsupported`` (a frame with
     a good CRC that is signed, has unknown incompat flags, or is MAVLink 1) and ``garbage``
     (runs of bytes that start no frame). One corrupted region counts once: failures starting
     inside the span a previous failure claimed are not counted again.
@@ -296,9 +415,12 @@ class SimCodec:
 
     __slots__ = (
         "_tail_act",
+        "_tail_ahrs2",
         "_tail_att",
+        "_tail_gps",
         "_tail_hil",
         "_tail_lpn",
+        "_tail_sens",
         "bad_crc",
         "compid",
         "decoded",
@@ -321,6 +443,9 @@ class SimCodec:
         self._tail_att = bytes((system_id, component_id, MSG_ID_ATTITUDE, 0, 0))
         self._tail_lpn = bytes((system_id, component_id, MSG_ID_LOCAL_POSITION_NED, 0, 0))
         self._tail_act = bytes((system_id, component_id, MSG_ID_HIL_ACTUATOR_CONTROLS, 0, 0))
+        self._tail_sens = bytes((system_id, component_id, MSG_ID_HIL_SENSOR, 0, 0))
+        self._tail_gps = bytes((system_id, component_id, MSG_ID_HIL_GPS, 0, 0))
+        self._tail_ahrs2 = bytes((system_id, component_id, MSG_ID_AHRS2, 0, 0))
         self.decoded = 0
         self.bad_crc = 0
         self.truncated = 0
@@ -388,6 +513,63 @@ class SimCodec:
         c = (c >> 8) ^ table[(c ^ _CRC_EXTRA_LPN) & 0xFF]
         self.seq = (seq + 3) & 0xFF  # only now: a value that failed to pack used no number
         return b"".join((f1, f2, b"\xfd", body, _U16.pack(c)))
+
+    def encode_sensors(
+        self,
+        t_us: int,
+        imu: Iterable[float],
+        pressure_alt_m: float,
+        fields_updated: int,
+        gps: Iterable[int] | None,
+        ahrs: Iterable[float] | None,
+    ) -> bytes:
+        """One datagram: HIL_SENSOR, then HIL_GPS if ``gps``, then AHRS2 if ``ahrs`` (seq, +1, +2).
+
+        ``imu`` = (xacc, yacc, zacc [m/s^2], xgyro, ygyro, zgyro [rad/s]) body FRD; HIL_SENSOR
+        carries ``t_us``, ``imu``, ``pressure_alt_m`` and ``fields_updated`` (the
+        HIL_SENSOR_UPDATED_FLAGS bits), magnetometer, pressures, temperature and ``id`` 0.
+        ``gps`` = (time_usec, lat_e7, lon_e7, alt_mm, vn, ve, vd [cm/s]): a 3D fix with
+        unknown accuracies and course (UINT16_MAX), 10 satellites, ground speed
+        ``round(hypot(vn, ve))`` [cm/s], ``id`` and ``yaw`` 0. ``ahrs`` = (roll, pitch, yaw)
+        [rad] with altitude, lat and lng 0. Out-of-range values raise as in
+        :meth:`encode_state` and use no sequence number.
+        """
+        seq = self.seq
+        crc = crc16_mcrf4xx
+        table = _CRC_TABLE
+
+        pay = _SENS.pack(t_us, *imu, 0.0, 0.0, 0.0, 0.0, 0.0, pressure_alt_m, 0.0, fields_updated, 0)
+        pay = pay.rstrip(b"\0") or b"\0"  # MAVLink 2 truncation, as pymavlink: keep >= 1 byte
+        body = bytes((len(pay), 0, 0, seq)) + self._tail_sens + pay
+        c = crc(body, 0xFFFF)
+        c = (c >> 8) ^ table[(c ^ _CRC_EXTRA_SENS) & 0xFF]
+        parts = [b"\xfd", body, _U16.pack(c)]
+        k = 1
+
+        if gps is not None:
+            t_fix, lat, lon, alt, vn, ve, vd = gps
+            vel = min(_GPS_UNKNOWN_U16, int(round(math.hypot(vn, ve))))
+            pay = _GPS.pack(
+                t_fix, lat, lon, alt, _GPS_UNKNOWN_U16, _GPS_UNKNOWN_U16, vel, vn, ve, vd,
+                _GPS_UNKNOWN_U16, _GPS_FIX_3D, _GPS_SATELLITES, 0, 0,
+            )  # fmt: skip
+            pay = pay.rstrip(b"\0") or b"\0"
+            body = bytes((len(pay), 0, 0, (seq + k) & 0xFF)) + self._tail_gps + pay
+            c = crc(body, 0xFFFF)
+            c = (c >> 8) ^ table[(c ^ _CRC_EXTRA_GPS) & 0xFF]
+            parts += (b"\xfd", body, _U16.pack(c))
+            k += 1
+
+        if ahrs is not None:
+            pay = _AHRS2.pack(*ahrs, 0.0, 0, 0).rstrip(b"\0") or b"\0"
+            body = bytes((len(pay), 0, 0, (seq + k) & 0xFF)) + self._tail_ahrs2 + pay
+            c = crc(body, 0xFFFF)
+            c = (c >> 8) ^ table[(c ^ _CRC_EXTRA_AHRS2) & 0xFF]
+            parts += (b"\xfd", body, _U16.pack(c))
+            k += 1
+
+        self.seq = (seq + k) & 0xFF  # only now: a value that failed to pack used no number
+        return b"".join(parts)
 
     def encode_actuators(self, t_us: int, controls: Iterable[float], mode: int, flags: int = 0) -> bytes:
         """One HIL_ACTUATOR_CONTROLS frame; ``controls`` must hold exactly 16 values."""
@@ -457,6 +639,29 @@ class SimCodec:
                                             (msgid, sysid, compid, seq, t[0], t[1:5]) + t[5:],
                                         )
                                     )
+                                elif msgid == MSG_ID_HIL_SENSOR:
+                                    t = (
+                                        _SENS.unpack_from(data, p0)
+                                        if n >= _SIZE_SENS
+                                        else _SENS.unpack(data[p0:pend] + _PAD[_SIZE_SENS - n])
+                                    )
+                                    out.append(_new(HilSensor, (msgid, sysid, compid, seq) + t))
+                                elif msgid == MSG_ID_HIL_GPS:
+                                    t = (
+                                        _GPS.unpack_from(data, p0)
+                                        if n >= _SIZE_GPS
+                                        else _GPS.unpack(data[p0:pend] + _PAD[_SIZE_GPS - n])
+                                    )
+                                    # wire order: time, lat..cog, fix_type, satellites, id, yaw
+                                    t = (msgid, sysid, compid, seq, t[0], t[11]) + t[1:11] + t[12:]
+                                    out.append(_new(HilGps, t))
+                                elif msgid == MSG_ID_AHRS2:
+                                    t = (
+                                        _AHRS2.unpack_from(data, p0)
+                                        if n >= _SIZE_AHRS2
+                                        else _AHRS2.unpack(data[p0:pend] + _PAD[_SIZE_AHRS2 - n])
+                                    )
+                                    out.append(_new(Ahrs2, (msgid, sysid, compid, seq) + t))
                                 elif msgid == MSG_ID_WIND_COV:
                                     t = (
                                         _WCOV.unpack_from(data, p0)

@@ -86,6 +86,12 @@ class StateSample:
     # the air at the vehicle (earth NWU, m/s) and the pitches the servos reached (rad)
     air_nwu_m_s: tuple[float, float, float] | None = None
     servo_rad: tuple[float, float, float, float] | None = None
+    # a plant whose sensors are on adds what they measured (heli_common.measurements layout,
+    # each sensor's latest sample), the mask of samples new since the last state handed
+    # out, and the sensors' time [s] (vehicle time; it stands still while the vehicle is held)
+    meas: FloatArray | None = None
+    meas_mask: int = 0
+    meas_t_s: float = 0.0
 
 
 # What a state may hold: anything else is a corrupted or hostile datagram, never a vehicle.

@@ -5,11 +5,14 @@ from __future__ import annotations
 import numpy as np
 
 from heli_common.airframe import Airframe, PlantConstants
+from heli_common.defaults import HOME
+from heli_common.geo import GeoPoint
 from heli_common.jit import njit
 from heli_common.state import N_PITCH, N_STATE, FloatArray
 from heli_common.world import World, with_sim_param
 from heli_sitl.plant.contact import apply_ground_contact
 from heli_sitl.plant.integrate import rk4_step
+from heli_sitl.plant.sensors.sensing import Sensing
 from heli_sitl.plant.world.model import WP_SERVOS_ON, WP_TURB_ON, WorldModel, world_plant_step
 
 
@@ -42,6 +45,8 @@ class Plant:
     (the previous one is held), so nothing but a finite, in-range pitch reaches the model.
     ``world`` (off: None or a calm one) adds servos, air, mismatch and disturbances; the
     plant then flies the world's airframe, ``airframe`` being the controller's design.
+    With the world's sensors on, :attr:`sensing` holds what they measured at :attr:`t_s`
+    (sampled at the start and after every step of ``step_s``; GPS about ``home``).
     """
 
     def __init__(
@@ -52,6 +57,8 @@ class Plant:
         substeps: int = 1,
         ground_contact: bool = True,
         world: World | None = None,
+        step_s: float = 0.01,
+        home: GeoPoint = HOME,
     ) -> None:
         if substeps < 1:
             raise ValueError("substeps must be >= 1")
@@ -71,6 +78,11 @@ class Plant:
         self.u = np.zeros(N_PITCH)
         self.rejected_commands = 0
         self.on_ground = False
+        self.step_s = step_s
+        self.home = home
+        self.sensing: Sensing | None = None
+        if world is not None and world.sensing:
+            self._start_sensing()
         if self.world is not None:  # load the compiled world step now, not on the first step
             w = self.world
             wp = w.wp.copy()
@@ -86,15 +98,30 @@ class Plant:
             return False
         return True
 
+    def _start_sensing(self) -> None:
+        self.sensing = Sensing.build(self.world_config.sensors, self.step_s, self.constants.gravity_m_s2,
+                                     self.home)  # fmt: skip
+        self._sense(resting=True)  # what the autopilot measures before the first step
+
+    def _sense(self, resting: bool) -> None:
+        s, w = self.sensing, self.world
+        if s is not None:
+            s.sample(self.t_s, self.x, self.u, self.constants, resting,
+                     None if w is None else (w.air, w.wp, w.ws))  # fmt: skip
+
     def set_sim_param(self, name: str, value: float) -> bool:
-        """A live world setting (a SIM_ parameter): taken from the next step on. False (and
-        nothing changed) for an unknown name or a bad value; the same value again is a
-        no-op, so a sender may repeat itself."""
+        """A live world or sensor setting (a SIM_ parameter): taken from the next step on.
+        False (and nothing changed) for an unknown name or a bad value; the same value
+        again is a no-op, so a sender may repeat itself."""
         try:
             new = with_sim_param(self.world_config, name, value)
         except ValueError:
             return False
         if new == self.world_config:
+            return True
+        if new.sensors != self.world_config.sensors:
+            self.world_config = new
+            self._sensors_changed()
             return True
         self.world_config = new
         limits = np.column_stack([self.lo, self.hi])
@@ -104,6 +131,13 @@ class Plant:
         else:
             self.world.update(new, limits)
         return True
+
+    def _sensors_changed(self) -> None:
+        sensors = self.world_config.sensors
+        if self.sensing is not None:
+            self.sensing.update(sensors)
+        elif sensors.on:  # sensors switched on in flight (a failure): they measure from now on
+            self.sensing = Sensing.build(sensors, self.step_s, self.constants.gravity_m_s2, self.home)
 
     def step(self, dt_s: float) -> FloatArray:
         w = self.world
@@ -118,4 +152,5 @@ class Plant:
                 w.wp, w.ws, w.servo_p, w.servo_s, w.dryden,
             )  # fmt: skip
         self.t_s += dt_s
+        self._sense(resting=self.on_ground)
         return self.x

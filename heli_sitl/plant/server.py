@@ -28,6 +28,7 @@ from heli_common.mavlink.sim_protocol import (
 from heli_common.mavlink.udp import MavlinkUdp, mavlink2
 from heli_common.servo_map import limits_array
 from heli_sitl.plant.model import Plant
+from heli_sitl.plant.sensors.sensing import encode_measurements
 from heli_sitl.plant.servo_inputs import MavlinkServoInput
 
 log = logging.getLogger("heli_sitl.plant.server")
@@ -95,6 +96,9 @@ class PlantServer:
         if self.plant.world is not None:
             data += self._world_truth()
             n += 2
+        if self.plant.sensing is not None:
+            data += encode_measurements(self.codec, self.plant.t_s, self.plant.sensing)
+            n += 1
         self.link.send_bytes(data)
         self.link.stats.tx_messages += n
 

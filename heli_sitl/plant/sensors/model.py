@@ -95,7 +95,27 @@ import numpy as np
 
 from heli_common.jit import njit
 from heli_common.kinematics import cross, rot_body_to_earth
-from heli_common.measurements import AttitudeSample, BaroSample, GpsFix, ImuSample
+from heli_common.measurements import (  # the out layout and mask bits are the contract's
+    N_OUT,
+    NEW_ATT,
+    NEW_BARO,
+    NEW_GPS,
+    NEW_IMU,
+    OUT_ACCEL,
+    OUT_ATT,
+    OUT_ATT_T,
+    OUT_BARO_ALT,
+    OUT_BARO_T,
+    OUT_GPS_POS,
+    OUT_GPS_T,
+    OUT_GPS_VEL,
+    OUT_GYRO,
+    OUT_IMU_T,
+    AttitudeSample,
+    BaroSample,
+    GpsFix,
+    ImuSample,
+)
 from heli_common.sensors import Sensors, validate
 from heli_common.state import N_STATE, OMEGA, P_X, PHI, PSI, THETA, U_F, V_L, VEL, W_U, X_N, Z_U, FloatArray
 from heli_sitl.plant.world.noise import STREAM_SENSOR_BASE, normal, normal_pair
@@ -112,11 +132,6 @@ STREAM_GPS_VEL = STREAM_SENSOR_BASE + 7
 STREAM_ATT = STREAM_SENSOR_BASE + 8
 STREAM_BARO = STREAM_SENSOR_BASE + 9
 
-# --- mask bits of sensor_step's result ------------------------------------------------------
-NEW_IMU = 1
-NEW_GPS = 2
-NEW_ATT = 4
-NEW_BARO = 8
 
 # --- params[SNP_*] ---------------------------------------------------------------------------
 SNP_SEED = 0
@@ -194,18 +209,6 @@ N_SNS = 31  # the fixed part; the FIFOs follow
 GPS_REC = 7  # t_valid, pos 3, vel 3
 ATT_REC = 4  # t_valid, euler 3
 
-# --- out[OUT_*] ------------------------------------------------------------------------------
-OUT_IMU_T = 0
-OUT_GYRO = 1  # 3
-OUT_ACCEL = 4  # 3
-OUT_GPS_T = 7
-OUT_GPS_POS = 8  # 3
-OUT_GPS_VEL = 11  # 3
-OUT_ATT_T = 14
-OUT_ATT = 15  # 3
-OUT_BARO_T = 18
-OUT_BARO_ALT = 19
-N_OUT = 20
 
 #: timing tolerance as a fraction of the plant step (absorbs a time accumulated by += dt)
 TOL_STEPS = 1e-3

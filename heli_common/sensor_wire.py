@@ -1,0 +1,123 @@
+"""What the sim link can carry of a sensor sample, exactly, in compiled code.
+
+The plant sends its sensors in the MAVLink messages an autopilot reads in HIL: HIL_SENSOR
+(IMU and barometric altitude as float32, body FRD), HIL_GPS (latitude and longitude in
+1e-7 deg, altitude in mm, velocity in cm/s) and AHRS2 (the attitude source's Euler angles,
+float32). A real receiver reports at that resolution too. The in-process loop rounds its
+samples with :func:`to_wire_resolution`, the plant encodes with :func:`gps_to_wire` and the
+autopilot decodes with :func:`gps_from_wire`: the estimator then gets the same numbers,
+bit for bit, whether it runs in the plant's process or across the link.
+
+GPS positions are about a home (``home`` array: :data:`HOME_LAT_DEG`, :data:`HOME_LON_DEG`,
+:data:`HOME_ALT_M`, :data:`HOME_M_PER_DEG_LAT`, :data:`HOME_M_PER_DEG_LON`), with the same
+tangent-plane map as :mod:`heli_common.geo` (without its longitude wrap: the bench flies
+within kilometres of home).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from heli_common.geo import GeoPoint, _radii_m
+from heli_common.jit import njit
+from heli_common.measurements import (
+    NEW_ATT,
+    NEW_BARO,
+    NEW_GPS,
+    NEW_IMU,
+    OUT_ACCEL,
+    OUT_ATT,
+    OUT_BARO_ALT,
+    OUT_GPS_POS,
+    OUT_GPS_T,
+    OUT_GPS_VEL,
+    OUT_GYRO,
+)
+from heli_common.state import FloatArray
+
+HOME_LAT_DEG = 0
+HOME_LON_DEG = 1
+HOME_ALT_M = 2
+HOME_M_PER_DEG_LAT = 3
+HOME_M_PER_DEG_LON = 4
+N_HOME = 5
+
+# HIL_SENSOR.fields_updated: the IMU's six (acc x y z, gyro x y z) and pressure_alt
+IMU_FIELDS = 0x3F
+BARO_FIELD = 1 << 11
+
+INT16_MAX = 32767
+INT32_MAX = 2**31 - 1
+
+
+def home_array(home: GeoPoint) -> FloatArray:
+    """The ``home`` array of a home position."""
+    m_lat, m_lon = _radii_m(home.lat_deg)
+    deg = math.pi / 180.0
+    return np.array([home.lat_deg, home.lon_deg, home.alt_amsl_m, m_lat * deg, m_lon * deg])
+
+
+@njit
+def _clamp_round(v: float, limit: int) -> int:
+    if not math.isfinite(v):
+        return 0
+    return int(max(-limit, min(limit, round(v))))
+
+
+@njit
+def gps_to_wire(
+    pos_nwu: FloatArray, vel_nwu: FloatArray, home: FloatArray
+) -> tuple[int, int, int, int, int, int]:
+    """(lat_e7, lon_e7, alt_mm AMSL, vn, ve, vd [cm/s]) of a fix, as HIL_GPS carries them."""
+    lat = home[HOME_LAT_DEG] + pos_nwu[0] / home[HOME_M_PER_DEG_LAT]
+    lon = home[HOME_LON_DEG] - pos_nwu[1] / home[HOME_M_PER_DEG_LON]
+    alt = home[HOME_ALT_M] + pos_nwu[2]
+    return (
+        _clamp_round(lat * 1e7, INT32_MAX),
+        _clamp_round(lon * 1e7, INT32_MAX),
+        _clamp_round(alt * 1e3, INT32_MAX),
+        _clamp_round(vel_nwu[0] * 100.0, INT16_MAX),
+        _clamp_round(-vel_nwu[1] * 100.0, INT16_MAX),
+        _clamp_round(-vel_nwu[2] * 100.0, INT16_MAX),
+    )
+
+
+@njit
+def gps_from_wire(
+    lat_e7: int, lon_e7: int, alt_mm: int, vn: int, ve: int, vd: int, home: FloatArray,
+    pos_nwu: FloatArray, vel_nwu: FloatArray,
+) -> None:  # fmt: skip
+    """The inverse of :func:`gps_to_wire`, into ``pos_nwu`` and ``vel_nwu``."""
+    pos_nwu[0] = (lat_e7 * 1e-7 - home[HOME_LAT_DEG]) * home[HOME_M_PER_DEG_LAT]
+    pos_nwu[1] = -(lon_e7 * 1e-7 - home[HOME_LON_DEG]) * home[HOME_M_PER_DEG_LON]
+    pos_nwu[2] = alt_mm * 1e-3 - home[HOME_ALT_M]
+    vel_nwu[0] = vn * 0.01
+    vel_nwu[1] = -ve * 0.01
+    vel_nwu[2] = -vd * 0.01
+
+
+@njit
+def _f32(out: FloatArray, i: int, n: int) -> None:
+    for k in range(i, i + n):
+        out[k] = np.float32(out[k])
+
+
+@njit
+def to_wire_resolution(out: FloatArray, mask: int, home: FloatArray) -> None:
+    """Round the new samples of ``out`` (the measurement layout) to what the sim link
+    carries: float32 for the IMU, attitude and baro, HIL_GPS's integers for a fix. The
+    times are kept (the link carries them in microseconds)."""
+    if mask & NEW_IMU:
+        _f32(out, OUT_GYRO, 3)
+        _f32(out, OUT_ACCEL, 3)
+    if mask & NEW_ATT:
+        _f32(out, OUT_ATT, 3)
+    if mask & NEW_BARO:
+        _f32(out, OUT_BARO_ALT, 1)
+    if mask & NEW_GPS and math.isfinite(out[OUT_GPS_T]):
+        pos = out[OUT_GPS_POS : OUT_GPS_POS + 3]
+        vel = out[OUT_GPS_VEL : OUT_GPS_VEL + 3]
+        la, lo, al, vn, ve, vd = gps_to_wire(pos, vel, home)
+        gps_from_wire(la, lo, al, vn, ve, vd, home, pos, vel)

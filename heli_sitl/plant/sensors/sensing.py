@@ -1,0 +1,131 @@
+"""The sensors of a plant, one call per plant step: what the autopilot is sent.
+
+:func:`sense` takes the plant's true state after a step, the acceleration the model gives
+there (the dynamics derivative with the pitches and air of the step just flown), samples
+every sensor (:func:`~heli_sitl.plant.sensors.model.sensor_step`) and rounds the new
+samples to what the sim link carries (:mod:`heli_common.sensor_wire`). The plant process
+and the in-process loop call this same compiled function, so both give the autopilot's
+estimator the same numbers.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from heli_common import frames
+from heli_common.airframe import PlantConstants
+from heli_common.geo import GeoPoint
+from heli_common.jit import njit
+from heli_common.mavlink.fast import SimCodec
+from heli_common.measurements import (
+    NEW_ATT,
+    NEW_BARO,
+    NEW_GPS,
+    NEW_IMU,
+    OUT_ACCEL,
+    OUT_ATT,
+    OUT_BARO_ALT,
+    OUT_GPS_POS,
+    OUT_GPS_T,
+    OUT_GPS_VEL,
+    OUT_GYRO,
+)
+from heli_common.sensor_wire import BARO_FIELD, IMU_FIELDS, gps_to_wire, home_array, to_wire_resolution
+from heli_common.sensors import Sensors
+from heli_common.state import N_PITCH, FloatArray
+from heli_sitl.plant.dynamics import derivative
+from heli_sitl.plant.sensors.model import SensorModel, earth_accel_from_derivative, sensor_step
+from heli_sitl.plant.world.model import (
+    N_WP,
+    N_WS,
+    WS_AIR,
+    WS_PITCH,
+    WS_STEP,
+    AirConstants,
+    derivative_in_air,
+)
+
+
+@njit
+def sense(
+    t_s: float, x: FloatArray, held: FloatArray, c: PlantConstants, resting: bool, in_world: bool,
+    air: AirConstants, wp: FloatArray, ws: FloatArray, snp: FloatArray, sns: FloatArray,
+    out: FloatArray, home: FloatArray,
+) -> int:  # fmt: skip
+    """Sample every sensor at ``t_s`` for the true state ``x``; returns the mask of new
+    samples (``out`` holds the latest of each). ``held``: the pitches commanded over the
+    step just flown; in a world the servos' positions and the air of its last sub-step are
+    used instead. ``resting``: on the ground, or before the first command: no acceleration
+    (the vehicle is held)."""
+    acc = np.zeros(3)
+    if not resting:
+        if in_world and ws[WS_STEP] > 0.0:
+            xdot = derivative_in_air(t_s, x, ws[WS_PITCH : WS_PITCH + N_PITCH].copy(), c, air,
+                                     ws[WS_AIR : WS_AIR + 3].copy(), wp, ws)  # fmt: skip
+        elif in_world:
+            xdot = derivative_in_air(t_s, x, held, c, air, np.zeros(3), wp, ws)
+        else:
+            xdot = derivative(t_s, x, held, c)
+        acc[0], acc[1], acc[2] = earth_accel_from_derivative(x, xdot)
+    mask = sensor_step(t_s, x, acc, snp, sns, out)
+    to_wire_resolution(out, mask, home)
+    return mask
+
+
+@dataclass
+class Sensing:
+    """A plant's configured sensors: the arrays :func:`sense` works on, and the home the
+    GPS reports about."""
+
+    model: SensorModel
+    home: FloatArray
+    meas: FloatArray  # the measurement layout (heli_common.measurements), latest samples
+    mask: int = 0  # new at the last call
+
+    @classmethod
+    def build(cls, config: Sensors, step_s: float, gravity_m_s2: float, home: GeoPoint) -> Sensing:
+        model = SensorModel(config, step_s, gravity_m_s2)
+        return cls(model, home_array(home), model.out)
+
+    def update(self, config: Sensors) -> None:
+        """Live settings (SIM_ parameters): see :meth:`SensorModel.update`."""
+        self.model.update(config)
+
+    def sample(
+        self, t_s: float, x: FloatArray, held: FloatArray, c: PlantConstants, resting: bool,
+        world: tuple[AirConstants, FloatArray, FloatArray] | None,
+    ) -> int:  # fmt: skip
+        m = self.model
+        if world is None:
+            air, wp, ws = _NO_AIR, _NO_WP, _NO_WS
+        else:
+            air, wp, ws = world
+        self.mask = sense(t_s, x, held, c, resting, world is not None, air, wp, ws, m.params, m.state,
+                          m.out, self.home)  # fmt: skip
+        return self.mask
+
+
+def encode_measurements(codec: SimCodec, t_s: float, sensing: Sensing) -> bytes:
+    """What the sensors measured at the plant's vehicle time ``t_s``, as HIL_SENSOR (IMU,
+    body FRD, and baro; ``fields_updated`` flags the new ones), HIL_GPS (a fix delivered
+    now; ``time_usec`` its validity time) and AHRS2 (a new attitude-source sample, NED/FRD
+    Euler angles, yaw unwrapped), in one piece of the state's datagram."""
+    m, new = sensing.meas, sensing.mask
+    gyro = frames.flip(m[OUT_GYRO : OUT_GYRO + 3])
+    accel = frames.flip(m[OUT_ACCEL : OUT_ACCEL + 3])
+    fields = (IMU_FIELDS if new & NEW_IMU else 0) | (BARO_FIELD if new & NEW_BARO else 0)
+    gps = None
+    if new & NEW_GPS:
+        wire = gps_to_wire(m[OUT_GPS_POS : OUT_GPS_POS + 3], m[OUT_GPS_VEL : OUT_GPS_VEL + 3], sensing.home)
+        gps = (round(float(m[OUT_GPS_T]) * 1e6), *wire)
+    # (phi, theta, psi) -> (roll, pitch, yaw) is the same sign change as a vector's
+    ahrs = frames.flip(m[OUT_ATT : OUT_ATT + 3]) if new & NEW_ATT else None
+    return codec.encode_sensors(round(t_s * 1e6), (*accel, *gyro), float(m[OUT_BARO_ALT]), fields, gps, ahrs)
+
+
+# never read (in_world False), only there for the compiled signature
+_NO_AIR = AirConstants(False, False, 1.0, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0)
+_NO_WP = np.zeros(N_WP)
+_NO_WS = np.zeros(N_WS)
