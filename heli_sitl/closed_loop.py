@@ -30,6 +30,7 @@ from autopilot.tlc.controller import (
 )
 from heli_common.airframe import PlantConstants
 from heli_common.jit import njit
+from heli_common.mavlink.sim_protocol import as_received
 from heli_common.measurements import N_OUT
 from heli_common.sensor_wire import N_HOME
 from heli_common.state import N_PITCH, N_STATE, FloatArray
@@ -223,7 +224,9 @@ class SensingArrays:
         # itself, tick by tick, from a fresh start of the same configuration
         fresh = Sensing.build(m.config, m.step_s, m.gravity_m_s2, plant.home)
         est = np.zeros(state_size(int(eparams[K_N_BUF])))
-        est_init(eparams, est, plant.x)
+        # started from the spawn state as the autopilot process receives it (float32 on the
+        # sim link), so that a lockstep flight's estimator starts from the very same numbers
+        est_init(eparams, est, as_received(plant.x))
         return cls(True, fresh.model.params, fresh.model.state, fresh.meas, fresh.home, eparams, est,
                    cfg.use_baro, np.full((n + 1, plant.x.size), np.nan),
                    np.full((n + 1, N_EST_LOG), np.nan))  # fmt: skip

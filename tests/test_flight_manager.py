@@ -195,3 +195,36 @@ def test_hold_and_land_mid_flight_start_where_the_reference_is(mgr: FlightManage
     assert np.allclose(held[0:3], stop, atol=0.01)
     assert np.allclose(refs[-1, 0:2], held[0:2], atol=0.01) and refs[-1, 2] < 4.5  # landing there
 
+
+
+def test_gps_loss_holds_then_lands_and_says_so(mgr: FlightManager) -> None:
+    """Flying from sensors: GPS lost in flight -> hold on the estimate, land after the set
+    time without a fix; rejected fixes and estimator resets are reported."""
+    x = hovering(10.0)
+    mgr.execute(c.FlyTrajectory(StraightLine((0.0, 0.0, 10.0), (1.0, 0.0, 0.0), 60.0)), 0.0, x)
+    mgr.execute(c.Arm(), 0.0, x)
+    assert mgr.mode is Mode.AUTO
+    mgr.navigation(5.0, x, False, 1, 0)
+    mgr.navigation(5.2, x, False, 1, 1)
+    mgr.navigation(6.0, x, True, 1, 1)  # lost
+    assert mgr.mode is Mode.HOLD
+    mgr.navigation(15.9, x, True, 1, 1)
+    assert mgr.mode is Mode.HOLD  # 9.9 s: still holding
+    mgr.navigation(16.0, x, True, 1, 1)
+    assert mgr.mode is Mode.LAND
+    mgr.navigation(17.0, x, False, 1, 1)
+    assert mgr.mode is Mode.LAND  # a fix back does not resume the flight: it keeps landing
+    texts = [(e.severity, e.text) for e in mgr.take_events() if isinstance(e, c.Text)]
+    assert texts == [
+        (c.Severity.WARNING, "GPS fix rejected (1 so far)"),
+        (c.Severity.WARNING, "GPS jump: position estimate reset"),
+        (c.Severity.CRITICAL, "GPS lost: holding position"),
+        (c.Severity.CRITICAL, "GPS lost 10 s: landing"),
+        (c.Severity.INFO, "GPS back"),
+    ]
+
+
+def test_gps_loss_on_the_ground_is_only_reported(mgr: FlightManager) -> None:
+    mgr.navigation(1.0, ON_GROUND, True, 0, 0)
+    assert not mgr.armed and mgr.mode is not Mode.LAND
+    assert [e.text for e in mgr.take_events() if isinstance(e, c.Text)] == ["GPS lost"]

@@ -46,7 +46,8 @@ class EstimatorConfig:
     gps_timeout_s: float = spec("s", 0.0, 60.0, lo_open=True, default=1.0)
 
     # --- barometer (z only)
-    use_baro: bool = spec(default=False)
+    # on: the height holds when GPS is lost (the baro's slow drift is not estimated)
+    use_baro: bool = spec(default=True)
     baro_sigma_m: float = spec("m", 0.0, 100.0, lo_open=True, default=0.5)
 
     # --- delayed measurements: how far back a measurement may be fused at its validity time
@@ -59,4 +60,8 @@ class EstimatorConfig:
 
     @classmethod
     def load(cls, path: str | Path) -> EstimatorConfig:
-        return load(cls, path)
+        """A tuning file as given, or a name from ``configs/estimator/`` (``noisy``)."""
+        p = Path(path)
+        if not p.suffix and not p.is_file():
+            p = Path("estimator") / f"{path}.toml"
+        return load(cls, p)

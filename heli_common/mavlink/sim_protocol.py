@@ -52,6 +52,15 @@ def state_messages(t_us: int, x: FloatArray) -> list[Message]:
     return [hil, att, lpn]
 
 
+def as_received(x: FloatArray) -> FloatArray:
+    """The state ``x`` as the autopilot decodes it from the sim link (float32 fields, the
+    yaw wrapped): what an in-process estimator starts from to start where the process one
+    does."""
+    f = state_fields(x)
+    r = [float(np.float32(v)) for v in (*f.att, *f.pos_ned_m, *f.vel_ned_m_s)]
+    return frames.state_from_ned_fields(*r)
+
+
 def receive(link: MavlinkUdp, codec: SimCodec, timeout_s: float = 0.0, spin_s: float = 0.0) -> list[Decoded]:
     """Decode every queued datagram with the fast codec; drop (and count in ``link.stats``)
     frames that fail their CRC or length, unknown messages, and foreign system ids."""

@@ -151,6 +151,8 @@ class Plant:
                 self.t_s, self.x, self.u, self.constants, w.air, dt_s, self.substeps, self.ground_contact,
                 w.wp, w.ws, w.servo_p, w.servo_s, w.dryden,
             )  # fmt: skip
-        self.t_s += dt_s
+        # on the sim link's microsecond grid: the plant's clock (and its sensors' time stamps)
+        # is then exactly the in-process loop's k / rate, whatever the accumulated rounding
+        self.t_s = round((self.t_s + dt_s) * 1e6) / 1e6
         self._sense(resting=self.on_ground)
         return self.x
