@@ -183,3 +183,37 @@ def bench_world() -> list[Row]:
         cost = (wall(world) - ideal) / n_steps * 1e6
         rows.append(Row(f"  cost per plant step: {name}", cost, "us"))
     return rows
+
+
+@bench("in-process closed loop, sensors and estimator")
+def bench_sensors() -> list[Row]:
+    """The paper flight from sensors (the sensor models, the wire's rounding and the
+    estimator each tick): with every world effect and the `noisy` sensors at once, and each
+    preset's cost per tick over the ideal world's flight (best of 3)."""
+    import dataclasses
+
+    from autopilot.estimation.config import EstimatorConfig
+    from heli_common.world import World
+
+    sc = Scenario.load("paper")
+    noisy = World.load("noisy")
+    everything = World.load("everything")
+    both = dataclasses.replace(everything, sensors=dataclasses.replace(noisy.sensors, seed=everything.seed))
+
+    def wall(world: World | None, est: EstimatorConfig | None = None) -> float:
+        opts = SimOptions(world=world, estimator=est or EstimatorConfig())
+        return min(simulate(sc, opts).wall_s for _ in range(3))
+
+    n_steps = round(sc.run.duration_s * sc.run.rate_hz)
+    ideal = wall(None)
+    t_all = wall(both, EstimatorConfig.load("noisy"))
+    rtf = sc.run.duration_s / t_all
+    rows = [
+        Row("paper 120 s at 100 Hz, everything + noisy sensors: real-time factor", rtf, "x",
+            *above(rtf, 1000.0)),
+        Row("  floor: the same flight in the ideal world, per tick", ideal / n_steps * 1e6, "us"),
+    ]  # fmt: skip
+    for name in ("gps-typical", "imu-consumer", "noisy"):
+        cost = (wall(World.load(name)) - ideal) / n_steps * 1e6
+        rows.append(Row(f"  cost per tick: sensors + estimator, {name}", cost, "us"))
+    return rows

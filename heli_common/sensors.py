@@ -194,7 +194,7 @@ def _walk_per_hour(bias_after_1h: float) -> float:
 
 
 #: The presets' numbers as TOML-shaped tables (``preset(name)`` builds them; the integrator
-#: writes them to ``configs/sensors/NAME.toml``). Sources and the project's choices are in
+#: wrote them to ``configs/world/NAME.toml``, a test keeps them equal). Sources and the project's choices are in
 #: docs/sensors.md; in short:
 #:   gps-typical  u-blox M8 class receiver: 2.5 m CEP = 2.12 m per axis (CEP = 1.1774 sigma),
 #:                split into Gauss-Markov wander 2.1 m (tau 60 s) + 0.3 m white (total
