@@ -193,9 +193,9 @@ def _walk_per_hour(bias_after_1h: float) -> float:
     return bias_after_1h / math.sqrt(_HOUR_S)
 
 
-#: The presets' numbers as TOML-shaped tables (``preset(name)`` builds them; the integrator
-#: wrote them to ``configs/world/NAME.toml``, a test keeps them equal). Sources and the project's choices are in
-#: docs/sensors.md; in short:
+#: The presets' numbers as TOML-shaped tables (``preset(name)`` builds them; they were
+#: written to ``configs/world/NAME.toml``, and a test keeps the two equal). Sources and the
+#: project's choices are in docs/sensors.md; in short:
 #:   gps-typical  u-blox M8 class receiver: 2.5 m CEP = 2.12 m per axis (CEP = 1.1774 sigma),
 #:                split into Gauss-Markov wander 2.1 m (tau 60 s) + 0.3 m white (total
 #:                2.121 m per axis); 5 Hz, 100 ms latency, 0.05 m/s velocity; the vertical
