@@ -179,3 +179,33 @@ class SimParam:
     hi: float
     unit: str
     description: str
+
+
+def to_toml(table: Mapping[str, Any]) -> str:
+    """A TOML text of a table of numbers, booleans, strings, arrays and sub-tables (what
+    this project's loaders read back), for writing a configuration built in code."""
+
+    def value(v: Any) -> str:
+        if isinstance(v, bool):
+            return "true" if v else "false"
+        if isinstance(v, (int, float)):
+            if isinstance(v, float) and not math.isfinite(v):
+                raise ValueError(f"not representable in a config: {v!r}")
+            return repr(v)
+        if isinstance(v, str):
+            return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+        if isinstance(v, (list, tuple)):
+            return "[" + ", ".join(value(x) for x in v) + "]"
+        raise TypeError(f"cannot write {type(v).__name__} to TOML")
+
+    def emit(t: Mapping[str, Any], prefix: str, out: list[str]) -> None:
+        subs = {k: v for k, v in t.items() if isinstance(v, Mapping)}
+        out.extend(f"{k} = {value(v)}" for k, v in t.items() if k not in subs and v is not None)
+        for k, v in subs.items():
+            name = f"{prefix}.{k}" if prefix else k
+            out.append(f"\n[{name}]")
+            emit(v, name, out)
+
+    lines: list[str] = []
+    emit(table, "", lines)
+    return "\n".join(lines).lstrip("\n") + "\n"

@@ -207,6 +207,20 @@ def _demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def _campaign(args: argparse.Namespace) -> int:
+    from heli_sitl.campaign.run import run_campaign
+
+    summary = run_campaign(args.file, Path(args.out), samples=args.samples, workers=args.workers,
+                           scheduler=args.scheduler, quiet=args.quiet)  # fmt: skip
+    if args.via == "processes":
+        from heli_sitl.campaign.via_processes import compare
+
+        compare(args.file, Path(args.out), args.limit, samples=args.samples, quiet=args.quiet)
+    counts = summary["counts"]
+    assert isinstance(counts, dict)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="heli-sitl", description=__doc__)
     sub = p.add_subparsers(dest="cmd", required=True)
@@ -280,6 +294,18 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--world", default=None, metavar="FILE|PRESET", help=WORLD_HELP)
     d.add_argument("--gains", default=None, metavar="FILE", help=GAINS_HELP)
     d.set_defaults(func=_demo)
+
+    c = sub.add_parser("campaign", help="fly a campaign of flights in-process on Dask; Parquet, figures")
+    c.add_argument("file", help="campaign TOML, or a name in configs/campaigns/ (robustness, ...)")
+    c.add_argument("--out", required=True, help="output directory (re-running resumes it)")
+    c.add_argument("--samples", type=arg.count, default=None, help="override the file's sample count")
+    c.add_argument("--workers", type=arg.count, default=None, help="embedded cluster size (default: cores)")
+    c.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT", help="a running Dask scheduler")
+    c.add_argument("--via", choices=("inprocess", "processes"), default="inprocess",
+                   help="processes: also fly the first --limit samples through the process stack and compare")
+    c.add_argument("--limit", type=arg.count, default=3, help="samples flown through processes (--via)")
+    c.add_argument("--quiet", action="store_true", help="no progress bar, no table")
+    c.set_defaults(func=_campaign)
     return p
 
 

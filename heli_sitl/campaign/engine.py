@@ -1,0 +1,225 @@
+"""Running a campaign on Dask distributed, with its results in Parquet as they arrive.
+
+The flights are grouped into tasks of ``batch`` flights (enough that Dask's per-task cost,
+milliseconds, stays small beside a batch's seconds of flying), submitted to an embedded
+``LocalCluster`` (one single-threaded worker process per core, BLAS pinned to one thread)
+or to a running scheduler (``--scheduler tcp://host:port``). Each finished batch is written
+at once as its own Parquet file ``DIR/parts/part-<first>-<last>.parquet`` (written to a
+temporary name, then renamed: a part is there whole or not at all). Running the same
+command again reads the parts, skips every sample id already there, and flies the rest:
+no sample is flown into two parts. A worker that dies has its task retried (Dask's
+``retries``); a flight that raises is a failed row. At the end ``DIR/results.parquet``
+holds every row, sorted by sample id.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import os
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from heli_sitl.campaign.flight import fly
+from heli_sitl.campaign.settings import Flight
+from heli_sitl.campaign.spec import CampaignSpec
+
+PARTS = "parts"
+RESULTS = "results.parquet"
+# numpy, scipy and numba must not start a thread pool per worker on top of the processes
+SINGLE_THREAD_ENV = {
+    "OMP_NUM_THREADS": "1",
+    "OPENBLAS_NUM_THREADS": "1",
+    "MKL_NUM_THREADS": "1",
+    "NUMBA_NUM_THREADS": "1",
+}
+
+
+def software_version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("heli-tlc-sitl")
+    except PackageNotFoundError:
+        return "unknown"
+
+
+def schema(spec: CampaignSpec) -> pa.Schema:
+    """One row per flight: its id, each varied value, its seed, the metrics, the outcome."""
+    fields = [pa.field("sample_id", pa.int64())]
+    fields += [pa.field(k, pa.float64()) for k in spec.keys]
+    fields.append(pa.field("seed", pa.int64()))
+    kind = {
+        "saturated_ticks": pa.int64(),
+        "converged": pa.bool_(),
+        "diverged": pa.bool_(),
+        "diverged_reason": pa.string(),
+    }
+    fields += [pa.field(m, kind.get(m, pa.float64())) for m in spec.metrics]
+    fields += [
+        pa.field("failed", pa.bool_()),
+        pa.field("error", pa.string()),
+        pa.field("traceback", pa.string()),
+        pa.field("version", pa.string()),
+        pa.field("wall_s", pa.float64()),
+    ]
+    return pa.schema(fields)
+
+
+def run_batch(
+    spec: CampaignSpec, base: Flight, ids: list[int], rows: list[list[float]]
+) -> list[dict[str, Any]]:
+    """A task: fly these samples one after the other (in a worker process)."""
+    for k, v in SINGLE_THREAD_ENV.items():
+        os.environ.setdefault(k, v)
+    version = software_version()
+    out = []
+    for sid, values in zip(ids, rows, strict=True):
+        r = fly(spec, base, sid, spec.keys, values)
+        r["version"] = version
+        out.append(r)
+    return out
+
+
+def done_ids(out: Path) -> set[int]:
+    """Sample ids already written (complete parts only)."""
+    parts = out / PARTS
+    if not parts.is_dir():
+        return set()
+    ids: set[int] = set()
+    for f in sorted(parts.glob("part-*.parquet")):
+        ids.update(pq.read_table(f, columns=["sample_id"]).column("sample_id").to_pylist())
+    return ids
+
+
+def write_part(out: Path, spec: CampaignSpec, rows: list[dict[str, Any]]) -> Path:
+    sch = schema(spec)
+    table = pa.Table.from_pylist([{k: r.get(k) for k in sch.names} for r in rows], schema=sch)
+    parts = out / PARTS
+    parts.mkdir(parents=True, exist_ok=True)
+    ids = [r["sample_id"] for r in rows]
+    path = parts / f"part-{min(ids):08d}-{max(ids):08d}.parquet"
+    tmp = path.with_suffix(".tmp")
+    pq.write_table(table, tmp)
+    os.replace(tmp, path)
+    return path
+
+
+def collect(out: Path, spec: CampaignSpec) -> pa.Table:
+    """Every row written, one per sample id, sorted; written to DIR/results.parquet."""
+    parts = sorted((out / PARTS).glob("part-*.parquet"))
+    tables = [pq.read_table(f, schema=schema(spec)) for f in parts]
+    table = pa.concat_tables(tables) if tables else schema(spec).empty_table()
+    table = table.sort_by("sample_id")
+    pq.write_table(table, out / RESULTS)
+    return table
+
+
+def batch_size(spec: CampaignSpec, n_todo: int, workers: int) -> int:
+    """Enough tasks to keep every worker busy to the end (about 8 per worker), no more than
+    50 flights each (a lost batch costs little); at least 1."""
+    if spec.batch:
+        return spec.batch
+    return max(1, min(50, math.ceil(n_todo / max(1, 8 * workers))))
+
+
+@dataclass
+class EngineStats:
+    flights: int = 0
+    failed: int = 0
+    batches: int = 0
+    wall_s: float = 0.0
+    cluster_start_s: float = 0.0
+    workers: int = 0
+    scheduler: str = "embedded LocalCluster"
+
+
+@contextlib.contextmanager
+def cluster(workers: int, scheduler: str | None) -> Iterator[Any]:
+    """A Dask client: to ``scheduler``, or to an embedded LocalCluster of ``workers``
+    single-threaded processes (workers inherit the single-thread BLAS settings)."""
+    from dask.distributed import Client, LocalCluster
+
+    if scheduler:
+        with Client(scheduler, timeout="30s") as client:
+            yield client
+        return
+    saved = {k: os.environ.get(k) for k in SINGLE_THREAD_ENV}
+    os.environ.update(SINGLE_THREAD_ENV)
+    try:
+        with (
+            LocalCluster(
+                n_workers=workers,
+                threads_per_worker=1,
+                processes=True,
+                dashboard_address=None,
+                host="127.0.0.1",
+                silence_logs=40,
+            ) as lc,
+            Client(lc) as client,
+        ):
+            yield client
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+def run(
+    spec: CampaignSpec,
+    base: Flight,
+    table: np.ndarray,
+    out: Path,
+    workers: int,
+    scheduler: str | None = None,
+    progress: Callable[[int, int, int], None] | None = None,
+) -> EngineStats:
+    """Fly every sample of ``table`` not yet in ``out``; ``progress(done, total, failed)``
+    after each batch."""
+    from dask.distributed import as_completed
+
+    stats = EngineStats(scheduler=scheduler or "embedded LocalCluster")
+    have = done_ids(out)
+    todo = [i for i in range(table.shape[0]) if i not in have]
+    total = table.shape[0]
+    if progress is not None:
+        progress(len(have), total, 0)
+    if not todo:
+        return stats
+    t0 = time.perf_counter()
+    with cluster(workers, scheduler) as client:
+        stats.cluster_start_s = time.perf_counter() - t0
+        stats.workers = len(client.scheduler_info().get("workers", {})) or workers
+        size = batch_size(spec, len(todo), stats.workers)
+        base_f = client.scatter(base, broadcast=True)
+        spec_f = client.scatter(spec, broadcast=True)
+        futures = []
+        for k in range(0, len(todo), size):
+            ids = todo[k : k + size]
+            key = f"flights-{spec.name}-{ids[0]}-{ids[-1]}"
+            futures.append(
+                client.submit(
+                    run_batch, spec_f, base_f, ids, table[ids].tolist(), retries=3, pure=False, key=key
+                )
+            )
+        done = len(have)
+        for fut in as_completed(futures):
+            rows = fut.result()
+            write_part(out, spec, rows)
+            stats.batches += 1
+            stats.flights += len(rows)
+            stats.failed += sum(1 for r in rows if r["failed"])
+            done += len(rows)
+            if progress is not None:
+                progress(done, total, stats.failed)
+    stats.wall_s = time.perf_counter() - t0
+    return stats

@@ -1,0 +1,205 @@
+"""Every setting a campaign can vary, by its dotted name, applied to the base flight.
+
+Roots (each a frozen dataclass the rest of the bench already loads and validates):
+
+* ``world.*``: the world file's tree (``world.wind.speed_m_s``, ``world.servos.tau_s``,
+  ``world.mismatch.mass``, ``world.sensors.gps.noise_h_m``, ``world.seed``); aliases
+  ``plant.mismatch.*``, ``servo.*`` / ``servos.*`` and ``sensors.*`` name the same;
+* ``gains.*``: the gain set (``gains.loop4.omega_rad_s``: ``loopN`` is loop N's table);
+* ``estimator.*``: the estimator's tuning;
+* ``run.*``: the scenario's run table (``run.rate_hz``, ``run.plant_substeps``);
+* ``initial.*``: the initial state's fields, and three derived ones:
+  ``initial.pos_offset_m`` (the start's distance from the trajectory's first point, along
+  the scenario's own offset direction: 5.196 m is the paper's (3, -3, 3) m),
+  ``initial.yaw_error_rad`` (added to the scenario's initial yaw) and
+  ``initial.speed_m_s`` (initial forward body velocity).
+
+A tuple-valued setting takes one number for all its elements (``world.servos.tau_s`` sets
+all four servos), or an element by index (``world.servos.tau_s[2]``). A value is applied by
+rebuilding its root through the same validated loader as a file, so a bad value fails
+with the setting's name and range.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import re
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from autopilot.estimation.config import EstimatorConfig
+from autopilot.scenario import Run, Scenario
+from autopilot.tlc.gains import Gains
+from heli_common.config import ConfigError, build
+from heli_common.scenario_file import InitialState
+from heli_common.world import World
+
+ROOTS = ("world", "gains", "estimator", "run", "initial")
+ALIASES = {
+    "plant.mismatch.": "world.mismatch.",
+    "servo.": "world.servos.",
+    "servos.": "world.servos.",
+    "sensors.": "world.sensors.",
+}
+LOOPS = {
+    "loop1": "loop1_position_kinematics",
+    "loop2": "loop2_position_dynamics",
+    "loop3": "loop3_attitude_kinematics",
+    "loop4": "loop4_attitude_dynamics",
+}
+DERIVED = ("initial.pos_offset_m", "initial.yaw_error_rad", "initial.speed_m_s")
+_INDEX = re.compile(r"^(.*)\[(\d+)\]$")
+
+
+@dataclass(frozen=True)
+class Flight:
+    """Everything one flight needs, as the in-process simulator and the launchers take it."""
+
+    scenario: Scenario
+    world: World
+    estimator: EstimatorConfig
+
+
+def canonical(key: str) -> str:
+    """The setting's full name (aliases and ``loopN`` expanded)."""
+    for short, full in ALIASES.items():
+        if key.startswith(short):
+            key = full + key[len(short) :]
+            break
+    parts = key.split(".")
+    if parts[0] == "gains" and len(parts) > 1 and parts[1] in LOOPS:
+        parts[1] = LOOPS[parts[1]]
+    return ".".join(parts)
+
+
+def _as_table(obj: Any) -> Any:
+    """A dataclass as the TOML-shaped table its loader takes (tuples as lists)."""
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return {f.name: _as_table(getattr(obj, f.name)) for f in dataclasses.fields(obj) if f.init}
+    if isinstance(obj, tuple):
+        return [_as_table(v) for v in obj]
+    return obj
+
+
+def _set(table: dict[str, Any], path: list[str], value: float, key: str) -> None:
+    node: Any = table
+    for i, name in enumerate(path):
+        m = _INDEX.match(name)
+        field_name, index = (m.group(1), int(m.group(2))) if m else (name, None)
+        if not isinstance(node, dict) or field_name not in node:
+            where = ".".join(path[: i + 1])
+            raise ConfigError(f"{key}: no such setting ({where!r} is not in the table)")
+        if i < len(path) - 1:
+            if index is not None:
+                raise ConfigError(f"{key}: an index only on the last part")
+            node = node[field_name]
+            continue
+        old = node[field_name]
+        if isinstance(old, dict):
+            raise ConfigError(f"{key}: a table, not a number: name one of its keys ({', '.join(old)})")
+        if isinstance(old, list):
+            if index is None:
+                node[field_name] = [_typed(o, value, key) for o in old]
+            elif index < len(old):
+                old[index] = _typed(old[index], value, key)
+            else:
+                raise ConfigError(f"{key}: index {index} out of range (it has {len(old)} values)")
+        elif index is not None:
+            raise ConfigError(f"{key}: not an array, no index")
+        else:
+            node[field_name] = _typed(old, value, key)
+
+
+def _typed(old: Any, value: float, key: str) -> Any:
+    """``value`` in the type the setting has (a bool from 0/1, an int from a whole number)."""
+    if isinstance(old, bool):
+        if value not in (0.0, 1.0):
+            raise ConfigError(f"{key}: a switch takes 0 or 1, got {value:g}")
+        return value == 1.0
+    if isinstance(old, int):
+        if value != round(value):
+            raise ConfigError(f"{key}: a whole number, got {value:g}")
+        return int(round(value))
+    if isinstance(old, str):
+        raise ConfigError(f"{key}: a text setting cannot be varied by number")
+    return float(value)
+
+
+def apply(base: Flight, values: dict[str, float]) -> Flight:
+    """``base`` with each setting (full names, see :func:`canonical`) set."""
+    by_root: dict[str, dict[str, float]] = {}
+    for key, v in values.items():
+        root = key.split(".", 1)[0]
+        if root not in ROOTS or "." not in key:
+            raise ConfigError(f"{key}: unknown setting; it must start with one of {', '.join(ROOTS)}")
+        by_root.setdefault(root, {})[key] = v
+    sc, world, est = base.scenario, base.world, base.estimator
+    if "world" in by_root:
+        t = _as_table(world)
+        t.pop("source", None)
+        for key, v in by_root["world"].items():
+            _set(t, key.split(".")[1:], v, key)
+        w = build(World, t, "campaign: world")
+        w = dataclasses.replace(w, source=world.source, sensors=dataclasses.replace(w.sensors, seed=w.seed))
+        if w.air_matters and not (w.air.fuselage or w.air.rotor_inflow):
+            raise ConfigError(
+                "world: wind, gust or turbulence varied, but the base world's [air] has neither "
+                "fuselage nor rotor_inflow on: the air would not act on the vehicle"
+            )
+        world = w
+    if "gains" in by_root:
+        t = _as_table(sc.gains)
+        for key, v in by_root["gains"].items():
+            _set(t, key.split(".")[1:], v, key)
+        sc = dataclasses.replace(sc, gains=build(Gains, t, "campaign: gains"))
+    if "estimator" in by_root:
+        t = _as_table(est)
+        for key, v in by_root["estimator"].items():
+            _set(t, key.split(".")[1:], v, key)
+        est = build(EstimatorConfig, t, "campaign: estimator")
+    if "run" in by_root:
+        t = _as_table(sc.run)
+        for key, v in by_root["run"].items():
+            _set(t, key.split(".")[1:], v, key)
+        sc = dataclasses.replace(sc, run=build(Run, t, "campaign: run"))
+    if "initial" in by_root:
+        sc = dataclasses.replace(sc, initial=_initial(sc, by_root["initial"]))
+    return Flight(sc, world, est)
+
+
+def _initial(sc: Scenario, values: dict[str, float]) -> InitialState:
+    t = _as_table(sc.initial)
+    start = np.asarray(sc.trajectory.sample(0.0)[0, 0:3])
+    pos = np.asarray(sc.initial.pos_nwu_m, dtype=float)
+    for key, v in values.items():
+        if key == "initial.pos_offset_m":
+            if v < 0.0:
+                raise ConfigError(f"{key}: a distance, >= 0, got {v:g}")
+            off = pos - start
+            norm = float(np.linalg.norm(off))
+            unit = off / norm if norm > 0.0 else np.array([1.0, 0.0, 0.0])
+            t["pos_nwu_m"] = (start + v * unit).tolist()
+        elif key == "initial.yaw_error_rad":
+            t["euler_rad"][2] = float(sc.initial.euler_rad[2] + v)
+        elif key == "initial.speed_m_s":
+            t["vel_flu_m_s"] = [float(v), 0.0, 0.0]
+        else:
+            _set(t, key.split(".")[1:], v, key)
+    return build(InitialState, t, "campaign: initial")
+
+
+def check(base: Flight, key: str, probes: list[float]) -> None:
+    """Refuse a setting that does not exist, or whose probe values are out of range."""
+    full = canonical(key)
+    for v in probes:
+        if math.isfinite(v):
+            try:
+                apply(base, {full: v})
+            except ConfigError as exc:
+                text = str(exc)
+                raise ConfigError(
+                    text if text.startswith(full) or text.startswith(key) else f"{key}: {text}"
+                ) from exc

@@ -1,0 +1,336 @@
+"""Campaigns (heli-sitl campaign): files checked before anything flies, samplers that draw
+the declared distributions, the same rows from the same file whatever the cluster, a real
+Dask scheduler and workers on loopback, resuming after a SIGKILL, a worker killed mid-way.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+from scipy import stats
+
+from heli_common.config import ConfigError
+from heli_common.mavlink.udp import free_udp_port
+from heli_sitl.campaign import engine
+from heli_sitl.campaign.run import prepare, run_campaign
+from heli_sitl.campaign.sampling import flight_count, sample_table
+from heli_sitl.campaign.spec import parse
+
+ROOT = Path(__file__).resolve().parent.parent
+
+# 12 short flights in a world with turbulence and noisy sensors: every random stream on
+SMALL = """
+name = "small"
+scenario = "paper"
+world = "gps-typical"
+samples = 12
+sampler = "lhs"
+seed = 3
+duration_s = 12.0
+
+[[vary]]
+key = "plant.mismatch.mass"
+dist = "uniform"
+low = 0.9
+high = 1.1
+
+[[vary]]
+key = "world.wind.speed_m_s"
+dist = "uniform"
+low = 0.0
+high = 4.0
+
+[[vary]]
+key = "servo.tau_s"
+dist = "truncnormal"
+mean = 0.01
+sd = 0.01
+low = 0.0
+high = 0.03
+"""
+
+
+def small_file(tmp_path: Path, text: str = SMALL, world: str = "") -> Path:
+    f = tmp_path / "small.toml"
+    body = text
+    if world:
+        body = body.replace('world = "gps-typical"', f'world = "{world}"')
+    f.write_text(body)
+    # the wind acts only with air loads on: a world file with the sensors and the air
+    w = tmp_path / "air-and-gps.toml"
+    w.write_text(
+        (ROOT / "configs/world/gps-typical.toml")
+        .read_text()
+        .replace('name = "gps-typical"', 'name = "air-and-gps"')
+        + "\n[air]\nfuselage = true\nrotor_inflow = true\n"
+        "\n[turbulence]\nw20_m_s = 3.0\n"
+    )
+    f.write_text(f.read_text().replace('world = "gps-typical"', f'world = "{w}"'))
+    return f
+
+
+def rows(out: Path) -> list[dict[str, object]]:
+    """The rows, without the one column that differs from run to run (each flight's wall
+    time); NaN as None, so that equal rows compare equal."""
+    out_rows = []
+    for r in pq.read_table(out / engine.RESULTS).to_pylist():
+        r.pop("wall_s")
+        out_rows.append({k: None if isinstance(v, float) and v != v else v for k, v in r.items()})
+    return out_rows
+
+
+BAD = [
+    ('nme = "x"\n', "unknown key 'nme' (did you mean 'name'?)"),
+    (
+        'sampler = "halton"\n[[vary]]\nkey = "plant.mismatch.mass"\nlow = 0.9\nhigh = 1.1\n',
+        "sampler: expected one of",
+    ),
+    ('samples = 0\n[[vary]]\nkey = "plant.mismatch.mass"\nlow = 0.9\nhigh = 1.1\n', "samples"),
+    ('[[vary]]\nkey = "world.wnd.speed_m_s"\nlow = 0.0\nhigh = 1.0\n', "world.wnd.speed_m_s"),
+    (
+        '[[vary]]\nkey = "plant.mismatch.mass"\nlow = 1.1\nhigh = 0.9\n',
+        "(plant.mismatch.mass): low (1.1) must be below high",
+    ),
+    (
+        '[[vary]]\nkey = "plant.mismatch.mass"\ndist = "normal"\nmean = 1.0\nsd = 0.0\n',
+        "(plant.mismatch.mass).sd",
+    ),
+    ('[[vary]]\nkey = "plant.mismatch.mass"\ndist = "gamma"\n', "(plant.mismatch.mass).dist"),
+    ('[[vary]]\nkey = "plant.mismatch.mass"\nlow = 0.9\nhigh = 1.1\nstep = 2\n', "unknown key 'step'"),
+    (
+        '[[vary]]\nkey = "plant.mismatch.mass"\ndist = "grid"\nlow = 0.9\nhigh = 1.1\nn = 3\n',
+        'a grid needs sampler = "grid"',
+    ),
+    ('[[vary]]\nkey = "world.wind.speed_m_s"\nlow = 0.0\nhigh = 500.0\n', "world.wind.speed_m_s"),
+    ('[[vary]]\nkey = "servo.tau_s[7]"\nlow = 0.0\nhigh = 0.1\n', "index 7 out of range"),
+    ('[[vary]]\nkey = "world.wind"\nlow = 0.0\nhigh = 1.0\n', "a table, not a number"),
+    ('[[vary]]\nkey = "speed"\nlow = 0.0\nhigh = 1.0\n', "speed: unknown setting"),
+    (
+        '[[vary]]\nkey = "plant.mismatch.mass"\nlow = 0.9\nhigh = 1.1\n'
+        '[[vary]]\nkey = "world.mismatch.mass"\nlow = 0.9\nhigh = 1.1\n',
+        "name the same setting",
+    ),
+    (
+        'metrics = ["rms"]\n[[vary]]\nkey = "plant.mismatch.mass"\nlow = 0.9\nhigh = 1.1\n',
+        "unknown key 'rms'",
+    ),
+    (
+        '[[vary]]\nkey = "plant.mismatch.mass"\ndist = "truncnormal"\nmean = 2.0\nsd = 0.1\n'
+        "low = 0.9\nhigh = 1.1\n",
+        "the mean must lie within",
+    ),
+    ('world = "nowhere"\n[[vary]]\nkey = "plant.mismatch.mass"\nlow = 0.9\nhigh = 1.1\n', "nowhere"),
+]
+
+
+@pytest.mark.parametrize(("text", "expected"), BAD)
+def test_bad_campaign_files_are_refused_before_flying_naming_the_key(
+    tmp_path: Path, text: str, expected: str
+) -> None:
+    f = tmp_path / "bad.toml"
+    f.write_text(text)
+    with pytest.raises(ConfigError) as err:
+        prepare(f)
+    msg = str(err.value)
+    assert expected in msg and "\n" not in msg, msg
+
+
+def test_shipped_campaigns_are_valid_and_sized_as_documented() -> None:
+    sizes = {
+        "robustness": 1000,
+        "region_of_attraction": 7 * 5 * 3,
+        "margins": 13 * 11,
+        "sensitivity": 64 * 14,
+    }
+    for name, n in sizes.items():
+        spec, _, table = prepare(name)
+        assert table.shape == (n, len(spec.vary)) == (flight_count(spec), len(spec.vary))
+
+
+def test_samplers_draw_the_declared_marginals() -> None:
+    vary = [
+        {"key": "world.wind.speed_m_s", "dist": "uniform", "low": 1.0, "high": 3.0},
+        {"key": "world.wind.from_deg", "dist": "normal", "mean": 90.0, "sd": 20.0},
+        {"key": "servo.tau_s", "dist": "truncnormal", "mean": 0.02, "sd": 0.02, "low": 0.0, "high": 0.05},
+        {"key": "servo.delay_s", "dist": "choice", "values": [0.0, 0.01, 0.02]},
+    ]
+    dists = [
+        stats.uniform(1.0, 2.0),
+        stats.norm(90.0, 20.0),
+        stats.truncnorm((0.0 - 0.02) / 0.02, (0.05 - 0.02) / 0.02, loc=0.02, scale=0.02),
+    ]
+    for sampler in ("random", "lhs", "sobol"):
+        spec = parse({"samples": 2000, "sampler": sampler, "seed": 7, "vary": vary}, "t")
+        t = sample_table(spec)
+        assert t.shape == (2000, 4)
+        for j, d in enumerate(dists):
+            p = stats.kstest(t[:, j], d.cdf).pvalue
+            assert p > 0.01, (sampler, vary[j]["key"], p)
+        freq = np.array([np.mean(t[:, 3] == v) for v in (0.0, 0.01, 0.02)])
+        np.testing.assert_allclose(freq, 1 / 3, atol=0.04)
+        again = sample_table(spec)
+        np.testing.assert_array_equal(t, again)  # the seed fixes the samples
+    grid = parse(
+        {
+            "sampler": "grid",
+            "vary": [
+                {"key": "servo.delay_s", "dist": "grid", "low": 0, "high": 0.02, "n": 3},
+                {"key": "servo.tau_s", "dist": "choice", "values": [0.0, 0.05]},
+            ],
+        },
+        "t",
+    )
+    np.testing.assert_allclose(
+        sample_table(grid), [[0, 0], [0, 0.05], [0.01, 0], [0.01, 0.05], [0.02, 0], [0.02, 0.05]]
+    )
+    sal = parse({"sampler": "saltelli", "samples": 16, "vary": vary[:3]}, "t")
+    assert sample_table(sal).shape == (16 * 5, 3) and flight_count(sal) == 80
+
+
+@pytest.mark.slow
+def test_same_file_same_rows_on_one_and_two_workers(tmp_path: Path) -> None:
+    f = small_file(tmp_path)
+    run_campaign(f, tmp_path / "a", workers=1, quiet=True)
+    s = run_campaign(f, tmp_path / "b", workers=2, quiet=True)
+    a, b = rows(tmp_path / "a"), rows(tmp_path / "b")
+    assert [r["sample_id"] for r in a] == list(range(12))
+    assert a == b  # every value, metric and seed
+    assert not any(r["failed"] for r in a)
+    assert len({r["seed"] for r in a}) == 12  # one random stream per flight
+    assert s["counts"]["flights"] == 12
+    assert (tmp_path / "b" / "campaign.json").is_file() and (tmp_path / "b" / "hist.png").is_file()
+    # the same command again: everything is there, nothing flies
+    again = run_campaign(f, tmp_path / "b", workers=2, quiet=True)
+    assert again["run"]["flown_now"] == 0 and rows(tmp_path / "b") == b
+
+
+def _spawn(args: list[str], log: Path) -> subprocess.Popen[bytes]:
+    return subprocess.Popen(args, stdout=log.open("wb"), stderr=subprocess.STDOUT, start_new_session=True)
+
+
+def _stop(p: subprocess.Popen[bytes]) -> None:
+    if p.poll() is None:
+        os.killpg(p.pid, signal.SIGTERM)
+        try:
+            p.wait(10)
+        except subprocess.TimeoutExpired:
+            os.killpg(p.pid, signal.SIGKILL)
+            p.wait(10)
+
+
+def _wait_for_parts(out: Path, n: int, proc: subprocess.Popen[bytes] | None, timeout_s: float) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if len(list((out / engine.PARTS).glob("part-*.parquet"))) >= n:
+            return
+        if proc is not None and proc.poll() is not None:
+            raise AssertionError(f"campaign ended early ({proc.returncode})")
+        time.sleep(0.05)
+    raise AssertionError(f"fewer than {n} parts within {timeout_s} s")
+
+
+@pytest.mark.slow
+def test_a_real_scheduler_with_two_workers_and_one_killed_mid_way(tmp_path: Path) -> None:
+    """``dask scheduler`` and two ``dask worker`` processes on loopback: the campaign gives
+    the embedded run's rows; then one worker is SIGKILLed during a second campaign, which
+    still completes, every sample once."""
+    f = small_file(tmp_path)
+    run_campaign(f, tmp_path / "embedded", workers=2, quiet=True)
+    port = free_udp_port()  # a free TCP port too, on loopback, in practice
+    dask = [sys.executable, "-m", "distributed.cli.dask_scheduler"]
+    sched = _spawn(
+        [*dask, "--host", "127.0.0.1", "--port", str(port), "--dashboard-address", ":0"],
+        tmp_path / "scheduler.log",
+    )
+    addr = f"tcp://127.0.0.1:{port}"
+    worker_cmd = [sys.executable, "-m", "distributed.cli.dask_worker", addr, "--nthreads", "1",
+                  "--nworkers", "1", "--no-nanny", "--host", "127.0.0.1", "--dashboard-address", ":0"]
+    env = {**os.environ, **engine.SINGLE_THREAD_ENV}
+    workers = [
+        subprocess.Popen(
+            worker_cmd,
+            stdout=(tmp_path / f"w{i}.log").open("wb"),
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+            env=env,
+        )
+        for i in range(2)
+    ]
+    try:
+        s = run_campaign(f, tmp_path / "cluster", scheduler=addr, quiet=True)
+        assert s["run"]["workers"] == 2
+        assert rows(tmp_path / "cluster") == rows(tmp_path / "embedded")
+        # a bigger campaign in one-flight tasks; kill a worker once the first results are in
+        big = tmp_path / "big.toml"
+        big.write_text(
+            f.read_text()
+            .replace("samples = 12", "samples = 30")
+            .replace('name = "small"', 'name = "big"\nbatch = 1')
+        )
+        out = tmp_path / "big"
+        cmd = [
+            sys.executable,
+            "-m",
+            "heli_sitl.cli",
+            "campaign",
+            str(big),
+            "--out",
+            str(out),
+            "--scheduler",
+            addr,
+            "--quiet",
+        ]
+        camp = _spawn(cmd, tmp_path / "big.log")
+        _wait_for_parts(out, 3, camp, 240)
+        workers[0].kill()
+        assert camp.wait(300) == 0, (tmp_path / "big.log").read_text()[-2000:]
+        ids = [r["sample_id"] for r in rows(out)]
+        assert ids == list(range(30)) and not any(r["failed"] for r in rows(out))
+    finally:
+        for w in workers:
+            _stop(w)
+        _stop(sched)
+
+
+@pytest.mark.slow
+def test_a_killed_campaign_resumes_without_losing_or_repeating_a_flight(tmp_path: Path) -> None:
+    f = small_file(tmp_path)
+    f.write_text(
+        f.read_text()
+        .replace("samples = 12", "samples = 40")
+        .replace('name = "small"', 'name = "resume"\nbatch = 2')
+    )
+    out = tmp_path / "out"
+    cmd = [
+        sys.executable,
+        "-m",
+        "heli_sitl.cli",
+        "campaign",
+        str(f),
+        "--out",
+        str(out),
+        "--workers",
+        "2",
+        "--quiet",
+    ]
+    camp = _spawn(cmd, tmp_path / "first.log")
+    _wait_for_parts(out, 3, camp, 240)
+    os.killpg(camp.pid, signal.SIGKILL)  # the campaign and its cluster, at once
+    camp.wait(30)
+    before = engine.done_ids(out)
+    assert 0 < len(before) < 40
+    done = subprocess.run(cmd, capture_output=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-2000:]
+    ids = [r["sample_id"] for r in rows(out)]
+    assert ids == list(range(40))  # each exactly once
+    # the rows flown before the kill are the ones kept
+    first = {r["sample_id"]: r for r in rows(out) if r["sample_id"] in before}
+    assert len(first) == len(before)
