@@ -21,7 +21,12 @@ class Row(NamedTuple):
 
 BenchFn = Callable[[], list[Row]]
 REGISTRY: list[tuple[str, BenchFn]] = []
-MODULES = ("benchmarks.bench_sim", "benchmarks.bench_can", "benchmarks.bench_processes")
+MODULES = (
+    "benchmarks.bench_sim",
+    "benchmarks.bench_can",
+    "benchmarks.bench_processes",
+    "benchmarks.bench_campaign",
+)
 
 
 def bench(title: str) -> Callable[[BenchFn], BenchFn]:

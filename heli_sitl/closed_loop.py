@@ -151,14 +151,15 @@ def simulate(
     applied = np.full((n + 1, N_PITCH), np.nan)
     x = plant.x
     w = plant.world or CALM_ARRAYS
+    sn = SensingArrays.build(plant, opts.estimator, rate_hz, n)
     if plant.world is not None:
-        # the servos start where the first command puts them, as in the plant process
-        first = copy.deepcopy(ctrl).update(0.0, x, refs[0])
+        # the servos start where the first command puts them, as in the plant process; that
+        # command answers the state the controller sees first (the estimate, from sensors)
+        first = copy.deepcopy(ctrl).update(0.0, sn.first_estimate(plant) if sn.on else x, refs[0])
         u0 = plant.u.copy()
         accept_pitches(first, plant.lo, plant.hi, u0)
         plant.world.prepare(1.0 / rate_hz / plant.substeps, u0, np.column_stack([plant.lo, plant.hi]))
 
-    sn = SensingArrays.build(plant, opts.estimator, rate_hz, n)
 
     def ticks(k0: int, k1: int, state: FloatArray, held: FloatArray, ws: FloatArray, servo_s: FloatArray,
               x: FloatArray, sns: FloatArray, meas: FloatArray, est: FloatArray,
@@ -236,6 +237,15 @@ class SensingArrays:
         z = np.zeros(1)
         return cls(False, z, z, np.zeros(N_OUT), np.zeros(N_HOME), z, z, False, np.zeros((1, N_STATE)),
                    np.zeros((1, N_EST_LOG)))  # fmt: skip
+
+    def first_estimate(self, plant: Plant) -> FloatArray:
+        """The estimate of tick 0 (sensors sampled and fused on copies of the arrays)."""
+        w = plant.world or CALM_ARRAYS
+        meas, sns, est, x_hat = self.meas.copy(), self.sns.copy(), self.est.copy(), np.empty(N_STATE)
+        mask = sense(0.0, plant.x, plant.u, plant.constants, True, plant.world is not None, w.air, w.wp,
+                     w.ws.copy(), self.snp, sns, meas, self.home)  # fmt: skip
+        est_tick(self.eparams, est, 0.0, meas, mask, self.use_baro, x_hat)
+        return x_hat
 
     def args(self) -> tuple[object, ...]:
         """The loop's sensing arguments, in order (its own arrays)."""

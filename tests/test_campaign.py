@@ -148,7 +148,7 @@ def test_shipped_campaigns_are_valid_and_sized_as_documented() -> None:
         "robustness": 1000,
         "region_of_attraction": 7 * 5 * 3,
         "margins": 13 * 11,
-        "sensitivity": 64 * 14,
+        "sensitivity": 128 * 14,
     }
     for name, n in sizes.items():
         spec, _, table = prepare(name)
@@ -334,3 +334,19 @@ def test_a_killed_campaign_resumes_without_losing_or_repeating_a_flight(tmp_path
     # the rows flown before the kill are the ones kept
     first = {r["sample_id"]: r for r in rows(out) if r["sample_id"] in before}
     assert len(first) == len(before)
+
+
+@pytest.mark.slow
+def test_via_processes_flies_the_in_process_rows_again_over_mavlink(tmp_path: Path) -> None:
+    """--via processes: a sample's scenario, gains, world and estimator written as files and
+    flown by plant and autopilot processes in lockstep give the in-process row's RMS."""
+    from heli_sitl.campaign.via_processes import compare
+
+    f = small_file(tmp_path)
+    f.write_text(f.read_text().replace("samples = 12", "samples = 2"))
+    run_campaign(f, tmp_path / "out", workers=1, quiet=True)
+    res = compare(f, tmp_path / "out", limit=2, quiet=True)
+    assert [r["sample_id"] for r in res] == [0, 1]
+    for r in res:
+        assert r["abs_diff_m"]["rms_0_m"] < 1e-3 and r["abs_diff_m"]["rms_10_m"] < 1e-3, r
+    assert (tmp_path / "out" / "via_processes.json").is_file()

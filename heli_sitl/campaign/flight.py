@@ -28,7 +28,8 @@ METRIC_DOC = {
     "max_servo_rate_rad_s": "largest commanded pitch rate of any channel [rad/s]",
     "converge_s": "time from which the error stays below converge_m to the end (NaN: never) [s]",
     "converged": "1: the error stays below converge_m from some time to the end",
-    "diverged": "1: non-finite state, tumbled (tilt > 90 deg) or error beyond diverge_m",
+    "diverged": "1: non-finite state, or not converged after a tumble (tilt > 90 deg) or a run-away "
+    "(error beyond the initial error + diverge_m)",
     "diverged_reason": "why (empty when it did not)",
 }
 
@@ -62,13 +63,15 @@ def metrics(rec: FlightRecord, spec: CampaignSpec) -> dict[str, Any]:
         else (float(rec.t_s[0]) if not above.size else math.nan)
     )
     out["converged"] = not math.isnan(out["converge_s"]) and out["converge_s"] <= t_end
+    # lost: the state blew up, or the flight did not come back after tumbling or running
+    # away (a flight that tumbles and recovers has converged; its max_tilt_rad says so)
     reason = ""
     if not np.all(np.isfinite(rec.x)):
         reason = "non-finite state"
-    elif np.nanmax(tilt) > math.pi / 2:
+    elif not out["converged"] and np.nanmax(tilt) > math.pi / 2:
         reason = "tumbled (tilt > 90 deg)"
-    elif np.nanmax(err) > spec.diverge_m:
-        reason = f"error > {spec.diverge_m:g} m"
+    elif not out["converged"] and np.nanmax(err) > err[0] + spec.diverge_m:
+        reason = f"ran away (error > initial + {spec.diverge_m:g} m)"
     out["diverged"] = bool(reason)
     out["diverged_reason"] = reason
     return {k: out[k] for k in spec.metrics}

@@ -177,9 +177,9 @@ def run_campaign(
         sob = report.sobol_indices(spec, results)
         report.write_sobol(out / "sobol.csv", sob)
         summary["sobol"] = sob
-        text += "\n" + report.format_sobol(
-            sob, "rms_45_m" if "rms_45_m" in spec.metrics else sob[0]["metric"]
-        )
+        if sob:
+            first = "rms_45_m" if "rms_45_m" in spec.metrics else sob[0]["metric"]
+            text += "\n" + report.format_sobol(sob, first)
     summary["figures"] = [p.name for p in report.plots(spec, results, out)]
     (out / "campaign.json").write_text(json.dumps(summary, indent=2, default=str) + "\n")
     if not quiet:

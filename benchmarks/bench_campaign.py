@@ -1,0 +1,43 @@
+"""Campaign throughput on Dask: simulated vehicle-seconds per wall-second, embedded cluster
+of 1 and 2 workers, against one process flying the same flights in a plain loop (the
+floor: the single-flight in-process rate), and the shipped 1000-flight robustness campaign's
+wall time including the cluster's start."""
+
+from __future__ import annotations
+
+import tempfile
+import time
+from pathlib import Path
+
+from benchmarks import Row, above, below, bench
+from heli_sitl.campaign.engine import run_batch
+from heli_sitl.campaign.run import prepare, run_campaign
+
+SUBSET = 200  # flights of the robustness campaign for the 1- and 2-worker figures
+
+
+@bench("campaigns on Dask")
+def bench_campaign() -> list[Row]:
+    spec, base, table = prepare("robustness", SUBSET)
+    duration = base.scenario.run.duration_s
+    run_batch(spec, base, [0], [table[0].tolist()])  # load the compiled code in this process
+    t0 = time.perf_counter()
+    run_batch(spec, base, list(range(SUBSET)), table.tolist())
+    serial = SUBSET * duration / (time.perf_counter() - t0)
+    rows = [Row(f"floor: one process, plain loop, {SUBSET} robustness flights", serial, "veh-s/s")]
+    with tempfile.TemporaryDirectory() as tmp:
+        for workers in (1, 2):
+            out = Path(tmp) / f"w{workers}"
+            s = run_campaign("robustness", out, samples=SUBSET, workers=workers, quiet=True)
+            tput = float(s["run"]["vehicle_s_per_wall_s"])
+            eff = tput / (workers * serial)
+            rows.append(Row(f"embedded LocalCluster, {workers} worker(s), {SUBSET} flights", tput, "veh-s/s"))
+            rows.append(Row(f"  parallel efficiency vs {workers} x the floor", eff * 100, "%",
+                            *above(eff * 100, 90.0)))  # fmt: skip
+        t0 = time.perf_counter()
+        s = run_campaign("robustness", Path(tmp) / "full", quiet=True)
+        wall = float(s["run"]["cluster_start_s"] + s["run"]["engine_wall_s"])
+        name = "robustness.toml, 1000 flights: cluster start + flights"
+        rows.append(Row(name, wall, "s", *below(wall, 60.0)))
+        rows.append(Row("  the same with sample table, Parquet and figures", time.perf_counter() - t0, "s"))
+    return rows
