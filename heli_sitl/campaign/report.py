@@ -21,18 +21,10 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from heli_sitl.campaign.spec import CampaignSpec
+from heli_sitl.campaign.spec import METRICS, CampaignSpec
 
-NUMERIC = (
-    "rms_0_m",
-    "rms_10_m",
-    "rms_45_m",
-    "max_err_10_m",
-    "max_tilt_rad",
-    "saturated_ticks",
-    "max_servo_rate_rad_s",
-    "converge_s",
-)
+#: the metrics that are numbers (the rest are flags and text)
+NUMERIC = tuple(m for m in METRICS if m not in ("converged", "diverged", "diverged_reason"))
 
 
 def _col(table: pa.Table, name: str) -> np.ndarray:

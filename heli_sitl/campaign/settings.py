@@ -26,13 +26,12 @@ import dataclasses
 import math
 import re
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
 from autopilot.estimation.config import EstimatorConfig
-from autopilot.scenario import Run, Scenario
-from autopilot.tlc.gains import Gains
+from autopilot.scenario import Scenario
 from heli_common.config import ConfigError, build
 from heli_common.scenario_file import InitialState
 from heli_common.world import World
@@ -52,6 +51,7 @@ LOOPS = {
 }
 DERIVED = ("initial.pos_offset_m", "initial.yaw_error_rad", "initial.speed_m_s")
 _INDEX = re.compile(r"^(.*)\[(\d+)\]$")
+T = TypeVar("T")
 
 
 @dataclass(frozen=True)
@@ -128,6 +128,15 @@ def _typed(old: Any, value: float, key: str) -> Any:
     return float(value)
 
 
+def _rebuilt(obj: T, values: dict[str, float]) -> T:
+    """``obj`` (a config dataclass) with the settings set, through its validated loader."""
+    t = _as_table(obj)
+    t.pop("source", None)
+    for key, v in values.items():
+        _set(t, key.split(".")[1:], v, key)
+    return build(type(obj), t, f"campaign: {next(iter(values)).split('.')[0]}")
+
+
 def apply(base: Flight, values: dict[str, float]) -> Flight:
     """``base`` with each setting (full names, see :func:`canonical`) set."""
     by_root: dict[str, dict[str, float]] = {}
@@ -138,11 +147,7 @@ def apply(base: Flight, values: dict[str, float]) -> Flight:
         by_root.setdefault(root, {})[key] = v
     sc, world, est = base.scenario, base.world, base.estimator
     if "world" in by_root:
-        t = _as_table(world)
-        t.pop("source", None)
-        for key, v in by_root["world"].items():
-            _set(t, key.split(".")[1:], v, key)
-        w = build(World, t, "campaign: world")
+        w = _rebuilt(world, by_root["world"])
         w = dataclasses.replace(w, source=world.source, sensors=dataclasses.replace(w.sensors, seed=w.seed))
         if w.air_matters and not (w.air.fuselage or w.air.rotor_inflow):
             raise ConfigError(
@@ -151,20 +156,11 @@ def apply(base: Flight, values: dict[str, float]) -> Flight:
             )
         world = w
     if "gains" in by_root:
-        t = _as_table(sc.gains)
-        for key, v in by_root["gains"].items():
-            _set(t, key.split(".")[1:], v, key)
-        sc = dataclasses.replace(sc, gains=build(Gains, t, "campaign: gains"))
+        sc = dataclasses.replace(sc, gains=_rebuilt(sc.gains, by_root["gains"]))
     if "estimator" in by_root:
-        t = _as_table(est)
-        for key, v in by_root["estimator"].items():
-            _set(t, key.split(".")[1:], v, key)
-        est = build(EstimatorConfig, t, "campaign: estimator")
+        est = _rebuilt(est, by_root["estimator"])
     if "run" in by_root:
-        t = _as_table(sc.run)
-        for key, v in by_root["run"].items():
-            _set(t, key.split(".")[1:], v, key)
-        sc = dataclasses.replace(sc, run=build(Run, t, "campaign: run"))
+        sc = dataclasses.replace(sc, run=_rebuilt(sc.run, by_root["run"]))
     if "initial" in by_root:
         sc = dataclasses.replace(sc, initial=_initial(sc, by_root["initial"]))
     return Flight(sc, world, est)
