@@ -23,6 +23,8 @@ from autopilot.links.mavlink_gcs import GcsConfig, GcsService
 from autopilot.links.mavlink_sim import SimLink
 from autopilot.links.world_sync import WorldSync
 from autopilot.params_table import ParamTable
+from autopilot.pid.controller import PIDController
+from autopilot.pid.gains import PidGains
 from autopilot.runner import Recorder, Runner, RunnerConfig, TickService
 from autopilot.scenario import Scenario
 from autopilot.tlc.controller import TLController
@@ -67,6 +69,9 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--world", default=None, metavar="FILE|PRESET",
                    help="the world the plant flies (configs/world/ presets): its SIM_ parameters' "
                         "starting values; give the plant the same --world")
+    p.add_argument("--controller", choices=("tlc", "pid"), default="tlc",
+                   help="the paper's TLC, or the cascaded PID baseline (configs/gains_pid.toml)")
+    p.add_argument("--pid-gains", default=None, metavar="FILE", help="PID gains (TOML) for --controller pid")
     p.add_argument("--estimator", default=None, metavar="FILE",
                    help="estimator tuning (TOML, docs/estimator.md), used when the plant sends "
                         "measurements (a world with [sensors]); default: the documented defaults")
@@ -101,16 +106,18 @@ def main(argv: list[str] | None = None) -> int:
     return run_main("heli-autopilot", lambda: run(args, stop))
 
 
-def apply_params(ctrl: TLController, manager: FlightManager, table: ParamTable) -> None:
+def apply_params(ctrl: TLController | PIDController, manager: FlightManager, table: ParamTable) -> None:
     """Between two control steps: new gains, pitch limits (integrals and filters kept) and
-    failsafe timeouts."""
-    ctrl.set_gains(table.gains())
+    failsafe timeouts. The TLC_ gains are the TLC's: the PID baseline keeps its file's."""
+    if isinstance(ctrl, TLController):
+        ctrl.set_gains(table.gains())
     ctrl.set_limits(table.pitch_limits())
     manager.offboard_timeout_s = table.failsafe().offboard_timeout_s
 
 
 def make_gcs(
-    args: argparse.Namespace, sc: Scenario, ctrl: TLController, manager: FlightManager, limits: np.ndarray,
+    args: argparse.Namespace, sc: Scenario, ctrl: TLController | PIDController, manager: FlightManager,
+    limits: np.ndarray,
     world: World | None = None,
 ) -> GcsService:
     home = manager.cfg.home
@@ -137,7 +144,10 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
     world = World.load(args.world) if args.world else None  # refused before anything starts
     estimator = EstimatorConfig.load(args.estimator) if args.estimator else None
     rate = args.rate_hz or sc.run.rate_hz
-    ctrl = TLController(sc.airframe, sc.gains, rate, args.feedforward or sc.run.feedforward)
+    ctrl: TLController | PIDController = TLController(sc.airframe, sc.gains, rate,
+                                                      args.feedforward or sc.run.feedforward)  # fmt: skip
+    if args.controller == "pid":
+        ctrl = PIDController(sc.airframe, PidGains.load(args.pid_gains or "gains_pid.toml"), rate)
     limits = limits_array(sc.airframe.limits.as_tuple())
     manager = FlightManager(FlightConfig(home=parse_geo_point(args.home, '--home')))
     if args.autostart:
@@ -179,7 +189,9 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
         out.mkdir(parents=True, exist_ok=True)
         record = recorder.record(runner.wall_s, {
             "scenario": sc.run.name if manager.flew_duration(sc.run.duration_s) else None,
-            "mode": args.mode, "rate_hz": rate, "feedforward": ctrl.feedforward.value, "gains": sc.gains.name,
+            "mode": args.mode, "rate_hz": rate,
+            "feedforward": ctrl.feedforward.value if isinstance(ctrl, TLController) else None,
+            "gains": ctrl.gains.name, "controller": "pid" if isinstance(ctrl, PIDController) else None,
             "summary_end_s": args.summary_end_s,
             "loop": stats.summary(), "sim_link": link,
             "gcs_link": gcs.stats() if gcs is not None else None,

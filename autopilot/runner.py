@@ -28,6 +28,7 @@ from autopilot.estimation.onboard import OnboardEstimator
 from autopilot.flight.manager import FlightManager
 from autopilot.flight.modes import Mode
 from autopilot.metrics import CSV_HEADER, FlightRecord, write_rows
+from autopilot.pid.controller import PIDController
 from autopilot.tlc.controller import D_PHI_C, D_PSI_C, D_THETA_C, N_DIAG, OK, TLController
 from heli_common.links import ServoOutput, StateSource
 from heli_common.mavlink.sim_protocol import StateSample
@@ -227,7 +228,7 @@ class Recorder:
 class Runner:
     def __init__(
         self,
-        ctrl: TLController,
+        ctrl: TLController | PIDController,
         flight: FlightManager,
         state_in: StateSource | None,
         servo_out: ServoOutput,

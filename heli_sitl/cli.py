@@ -31,6 +31,7 @@ def _simulate(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from autopilot.estimation.config import EstimatorConfig
+    from autopilot.pid.gains import PidGains
     from autopilot.scenario import Scenario
     from ground.plots import plot_estimate, plot_figures, plot_world
     from heli_sitl.closed_loop import SimOptions, simulate
@@ -45,6 +46,8 @@ def _simulate(args: argparse.Namespace) -> int:
         duration_s=args.duration_s,
         world=World.load(args.world) if args.world else None,
         estimator=EstimatorConfig.load(args.estimator) if args.estimator else EstimatorConfig(),
+        controller=args.controller,
+        pid_gains=PidGains.load(args.pid_gains) if args.pid_gains else None,
     )
     with tqdm(
         total=100, desc=f"simulate {scenario.run.name}", unit="%", disable=args.quiet,
@@ -221,6 +224,12 @@ def _campaign(args: argparse.Namespace) -> int:
     return 0
 
 
+def add_controller_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--controller", choices=("tlc", "pid"), default="tlc",
+                   help="the paper's TLC, or the cascaded PID baseline (configs/gains_pid.toml)")
+    p.add_argument("--pid-gains", default=None, metavar="FILE", help="PID gains (TOML) for --controller pid")
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="heli-sitl", description=__doc__)
     sub = p.add_subparsers(dest="cmd", required=True)
@@ -236,6 +245,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--gains", default=None, metavar="FILE", help=GAINS_HELP)
     s.add_argument("--estimator", default=None, metavar="FILE",
                    help="estimator tuning (TOML, docs/estimator.md) for a world with [sensors]")
+    add_controller_args(s)
     s.set_defaults(func=_simulate)
 
     r = sub.add_parser("run", help="the plant process (sim link on UDP loopback)")

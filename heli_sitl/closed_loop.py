@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import functools
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -21,6 +22,8 @@ import numpy as np
 from autopilot.estimation.config import EstimatorConfig
 from autopilot.estimation.kf import K_N_BUF, N_EST_LOG, est_init, est_tick, log_tick, make_params, state_size
 from autopilot.metrics import FlightRecord
+from autopilot.pid.controller import PIDConstants, PIDController, pid_kernel
+from autopilot.pid.gains import PidGains
 from autopilot.scenario import Scenario
 from autopilot.tlc.controller import (
     N_DIAG,
@@ -41,6 +44,13 @@ from heli_sitl.plant.world.model import N_WP, N_WS, WS_AIR, WS_PITCH, AirConstan
 
 Progress = Callable[[int, int], None]
 CHUNK_TICKS = 500  # progress granularity; each chunk is one compiled call
+
+
+@functools.cache
+def default_pid_gains() -> PidGains:
+    """configs/gains_pid.toml, read once (a campaign simulates thousands of flights)."""
+    return PidGains.load()
+
 LS_ON_GROUND = 0  # the loop's own state across chunks: the vehicle rests on the ground
 
 
@@ -52,6 +62,8 @@ class SimOptions:
     duration_s: float | None = None
     world: World | None = None  # None: the paper's ideal world
     estimator: EstimatorConfig = EstimatorConfig()  # used when the world's sensors are on
+    controller: str = "tlc"  # or "pid": the cascaded PID baseline
+    pid_gains: PidGains | None = None  # None: configs/gains_pid.toml
 
 
 @njit
@@ -92,6 +104,9 @@ def _run_ticks(
     x_hats: FloatArray,
     est_log: FloatArray,
     loop_s: FloatArray,
+    use_pid: bool,
+    kp: PIDConstants,
+    pid_state: FloatArray,
 ) -> FloatArray:
     x = x0.copy()
     out = np.empty(N_PITCH)
@@ -99,6 +114,7 @@ def _run_ticks(
     x_hat = np.empty(x0.shape[0])
     dt = k.dt_s
     for i in range(k0, k1):
+        xc = x
         if sensing:
             # the controller flies on the estimate from what the sensors measured at t[i]
             resting = i == 0 or loop_s[LS_ON_GROUND] != 0.0
@@ -106,9 +122,11 @@ def _run_ticks(
             gps = est_tick(eparams, est, t[i], meas, mask, use_baro, x_hat)
             x_hats[i] = x_hat
             log_tick(est, gps, est_log[i])
-            tlc_kernel(k, ctrl_state, x_hat, refs[i], False, out, diag)
+            xc = x_hat
+        if use_pid:
+            pid_kernel(kp, pid_state, xc, refs[i], False, out, diag)
         else:
-            tlc_kernel(k, ctrl_state, x, refs[i], False, out, diag)
+            tlc_kernel(k, ctrl_state, xc, refs[i], False, out, diag)
         xs[i] = x
         us[i] = out
         diags[i] = diag
@@ -134,6 +152,10 @@ def simulate(
     rate_hz = opts.rate_hz or run.rate_hz
     duration = opts.duration_s or run.duration_s
     ctrl = TLController(scenario.airframe, scenario.gains, rate_hz, opts.feedforward or run.feedforward)
+    if opts.controller not in ("tlc", "pid"):
+        raise ValueError(f"controller must be tlc or pid, got {opts.controller!r}")
+    use_pid = opts.controller == "pid"
+    pid = PIDController(scenario.airframe, opts.pid_gains or default_pid_gains(), rate_hz)
     plant = Plant(
         scenario.airframe,
         scenario.initial.state().to_array(),
@@ -155,7 +177,8 @@ def simulate(
     if plant.world is not None:
         # the servos start where the first command puts them, as in the plant process; that
         # command answers the state the controller sees first (the estimate, from sensors)
-        first = copy.deepcopy(ctrl).update(0.0, sn.first_estimate(plant) if sn.on else x, refs[0])
+        flying = pid if use_pid else ctrl
+        first = copy.deepcopy(flying).update(0.0, sn.first_estimate(plant) if sn.on else x, refs[0])
         u0 = plant.u.copy()
         accept_pitches(first, plant.lo, plant.hi, u0)
         plant.world.prepare(1.0 / rate_hz / plant.substeps, u0, np.column_stack([plant.lo, plant.hi]))
@@ -163,29 +186,31 @@ def simulate(
 
     def ticks(k0: int, k1: int, state: FloatArray, held: FloatArray, ws: FloatArray, servo_s: FloatArray,
               x: FloatArray, sns: FloatArray, meas: FloatArray, est: FloatArray,
-              loop_s: FloatArray) -> FloatArray:  # fmt: skip
+              loop_s: FloatArray, pid_state: FloatArray) -> FloatArray:  # fmt: skip
         return _run_ticks(
             ctrl.constants, state, plant.constants, plant.lo, plant.hi, held, x, refs, t, k0, k1, n,
             plant.substeps, xs, us, diags, plant.world is not None, w.air, w.wp, ws, w.servo_p,
             servo_s, w.dryden, airs, applied, sn.on, sn.snp, sns, meas, sn.home, sn.eparams, est,
-            sn.use_baro, sn.x_hats, sn.log, loop_s,
+            sn.use_baro, sn.x_hats, sn.log, loop_s, use_pid, pid.constants, pid_state,
         )  # fmt: skip
 
     loop_s = np.zeros(1)
     # load (or compile) the kernels outside the timed flight, on throwaway copies
     ticks(0, 1, ctrl.state.copy(), plant.u.copy(), w.ws.copy(), w.servo_s.copy(), x, sn.sns.copy(),
-          sn.meas.copy(), sn.est.copy(), loop_s.copy())  # fmt: skip
+          sn.meas.copy(), sn.est.copy(), loop_s.copy(), pid.state.copy())  # fmt: skip
     wall0 = time.perf_counter()
     for k0 in range(0, n + 1, CHUNK_TICKS):
         k1 = min(n + 1, k0 + CHUNK_TICKS)
-        x = ticks(k0, k1, ctrl.state, plant.u, w.ws, w.servo_s, x, sn.sns, sn.meas, sn.est, loop_s)
+        x = ticks(k0, k1, ctrl.state, plant.u, w.ws, w.servo_s, x, sn.sns, sn.meas, sn.est, loop_s, pid.state)
         if progress is not None:
             progress(k1 - 1, n)
     wall = time.perf_counter() - wall0
     extra: dict[str, object] = {
         "scenario": run.name, "rate_hz": rate_hz, "feedforward": ctrl.feedforward.value,
-        "plant_substeps": plant.substeps, "gains": scenario.gains.name,
+        "plant_substeps": plant.substeps, "gains": pid.gains.name if use_pid else scenario.gains.name,
     }  # fmt: skip
+    if use_pid:
+        extra["controller"] = "pid"
     if plant.world is not None or sn.on:
         extra["world"] = plant.world_config.describe(scenario.airframe)
     if sn.on:

@@ -13,6 +13,8 @@ import numpy as np
 import pytest
 from hypothesis import settings
 
+from autopilot.pid.controller import PIDController
+from autopilot.pid.gains import PidGains
 from autopilot.reference import N_REF
 from autopilot.tlc.controller import N_DIAG, TLCConstants, TLController
 from autopilot.tlc.gains import Gains
@@ -28,6 +30,8 @@ settings.register_profile("thorough", deadline=None, max_examples=2000)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "heli"))
 
 RATE_HZ = 100.0
+# the compiled loop flies the TLC here; the PID's arrays are there for its signature only
+PID_OFF = PIDController(Airframe.load(), PidGains.load(), RATE_HZ)
 HOVER_ALT_M = 50.0  # far from the ground plane (contact would level the attitude)
 HOVER_PSI_RAD = 0.3
 SETTLE_S = 400.0  # the slowest closed-loop mode (loop 1) decays as exp(-0.13 t)
@@ -80,7 +84,7 @@ def fly(
         k, ctrl_state, plant.constants, plant.lo, plant.hi, held, np.asarray(x0, dtype=float),
         refs, t, 0, n + 1, n + 1, plant.substeps, xs, us, diags, False, w.air, w.wp, w.ws,
         w.servo_p, w.servo_s, w.dryden, np.zeros((n + 1, 3)), np.zeros((n + 1, N_PITCH)),
-        *SensingArrays.off().args(), np.zeros(1),
+        *SensingArrays.off().args(), np.zeros(1), False, PID_OFF.constants, PID_OFF.state.copy(),
     )  # fmt: skip
     return Flight(xs, us, diags, t, x_next)
 

@@ -265,6 +265,10 @@ def test_a_real_scheduler_with_two_workers_and_one_killed_mid_way(tmp_path: Path
         for i in range(2)
     ]
     try:
+        from dask.distributed import Client
+
+        with Client(addr, timeout="60s") as c:  # both workers in before the campaign starts
+            c.wait_for_workers(2, timeout=120)
         s = run_campaign(f, tmp_path / "cluster", scheduler=addr, quiet=True)
         assert s["run"]["workers"] == 2
         assert rows(tmp_path / "cluster") == rows(tmp_path / "embedded")

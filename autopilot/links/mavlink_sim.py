@@ -47,12 +47,21 @@ class Measurements:
         self.mask = 0
         self.t_s = 0.0
         self.seen = False
+        self._taken_us = -1  # the sensors' time of the last state handed out
+        self._stale = False  # the datagram being read repeats one already handed out
+        self._t_us = -1
 
     def feed(self, msg: object) -> bool:
-        """Take one message if it is a sensor's; False otherwise."""
+        """Take one message if it is a sensor's; False otherwise. A datagram the plant sent
+        again (lockstep re-sends a state it got no answer to) repeats samples already
+        handed out: they are dropped, or a fix would be fused twice."""
         m = self.meas
         if isinstance(msg, HilSensor):
+            self._stale = msg.time_usec <= self._taken_us and self.seen
+            if self._stale:
+                return True
             self.seen = True
+            self._t_us = msg.time_usec
             self.t_s = msg.time_usec / 1e6
             if msg.fields_updated & IMU_FIELDS == IMU_FIELDS:
                 m[OUT_IMU_T] = self.t_s
@@ -63,6 +72,8 @@ class Measurements:
                 m[OUT_BARO_T] = self.t_s
                 m[OUT_BARO_ALT] = msg.pressure_alt
                 self.mask |= NEW_BARO
+            return True
+        if isinstance(msg, (HilGps, Ahrs2)) and self._stale:
             return True
         if isinstance(msg, HilGps):
             m[OUT_GPS_T] = msg.time_usec / 1e6
@@ -84,6 +95,7 @@ class Measurements:
             return s
         out = dataclasses.replace(s, meas=self.meas.copy(), meas_mask=self.mask, meas_t_s=self.t_s)
         self.mask = 0
+        self._taken_us = self._t_us
         return out
 
 

@@ -1,0 +1,270 @@
+"""The cascaded PID baseline, as PX4's and ArduPilot's multicopter/helicopter controllers
+are built: position P -> velocity PI (with the trajectory's velocity and acceleration as
+feed-forward) -> thrust vector with a tilt limit -> attitude set point -> attitude P ->
+body-rate PID (derivative on the filtered measurement, clamped integrators frozen while an
+output saturates) -> torque -> the four blade pitches through the inverse rotor maps of
+the spec, the very allocation the TLC uses (autopilot/tlc/allocation.py, inversion.py).
+
+Same contract as the TLC: ``update(t, state, reference) -> pitches``, no I/O, no clock; the
+whole law is one compiled kernel (:func:`pid_kernel`) over a flat state with named offsets.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from autopilot.pid.gains import PidGains
+from autopilot.reference import ACC_0 as REF_ACC
+from autopilot.reference import N_REF
+from autopilot.reference import POS_0 as REF_POS
+from autopilot.reference import VEL_0 as REF_VEL
+from autopilot.tlc.allocation import clip, main_rotor_torque, solve_cyclic_tail
+from autopilot.tlc.controller import (
+    BAD_INPUT,
+    BAD_OUTPUT,
+    D_PHI_C,
+    D_PSI_C,
+    D_SAT_MASK,
+    D_STATUS,
+    D_THETA_C,
+    D_TILT_LIMITED,
+    D_TM,
+    N_DIAG,
+    OK,
+)
+from autopilot.tlc.inversion import force_to_thrust_attitude, limit_tilt, yaw_rate_command
+from heli_common import rotor
+from heli_common.airframe import Airframe, PitchLimits, PlantConstants
+from heli_common.jit import njit
+from heli_common.kinematics import cross, euler_rate_matrix, rot_body_to_earth, wrap_pi
+from heli_common.state import EULER, N_PITCH, N_STATE, OMEGA, POS, VEL, FloatArray
+
+# controller state layout
+P_I_VEL = 0  # (3) velocity-error integral, earth NWU
+P_I_RATE = 3  # (3) body-rate-error integral
+P_D_RATE = 6  # (3) filtered derivative of the measured body rates
+P_LAST_RATE = 9  # (3) the previous measured body rates
+P_PSI_C = 12  # yaw command
+P_STARTED = 13
+P_LAST_U = 14  # (4) last valid output
+N_PID_STATE = 18
+
+
+class PIDConstants(NamedTuple):
+    plant: PlantConstants
+    limits: FloatArray  # (4, 2) pitch limits [rad]
+    j: FloatArray  # (3, 3) inertia
+    dt_s: float
+    kp_pos: FloatArray  # (3,)
+    max_speed: float
+    kp_vel: FloatArray
+    ki_vel: FloatArray
+    i_max_vel: float
+    kp_att: FloatArray
+    max_rate: FloatArray
+    kp_rate: FloatArray
+    ki_rate: FloatArray
+    kd_rate: FloatArray
+    d_alpha: float  # derivative filter: first order at d_filter_hz, discretised
+    i_max_rate: float
+    tilt_max_rad: float
+    yaw_hold_speed_m_s: float
+
+
+def make_pid_constants(airframe: Airframe, gains: PidGains, rate_hz: float) -> PIDConstants:
+    if not 50.0 <= rate_hz <= 1000.0:
+        raise ValueError(f"control rate must be in [50, 1000] Hz, got {rate_hz}")
+    c = airframe.constants()
+    dt = 1.0 / rate_hz
+    tau_d = 1.0 / (2.0 * math.pi * gains.rate.d_filter_hz)
+    a = np.asarray
+    return PIDConstants(
+        plant=c, limits=a(airframe.limits.as_tuple(), dtype=float),
+        j=a([[c.ixx, 0.0, -c.ixz], [0.0, c.iyy, 0.0], [-c.ixz, 0.0, c.izz]]), dt_s=dt,
+        kp_pos=a(gains.position.kp, dtype=float), max_speed=gains.position.max_speed_m_s,
+        kp_vel=a(gains.velocity.kp, dtype=float), ki_vel=a(gains.velocity.ki, dtype=float),
+        i_max_vel=gains.velocity.i_max_m_s2, kp_att=a(gains.attitude.kp, dtype=float),
+        max_rate=a(gains.attitude.max_rate_rad_s, dtype=float), kp_rate=a(gains.rate.kp, dtype=float),
+        ki_rate=a(gains.rate.ki, dtype=float), kd_rate=a(gains.rate.kd, dtype=float),
+        d_alpha=dt / (tau_d + dt), i_max_rate=gains.rate.i_max_rad_s2,
+        tilt_max_rad=gains.limits.tilt_max_rad, yaw_hold_speed_m_s=gains.limits.yaw_hold_speed_m_s,
+    )  # fmt: skip
+
+
+@njit
+def _finite(v: FloatArray) -> bool:
+    for i in range(v.shape[0]):  # noqa: SIM110 (numba compiles no generator inside all())
+        if not math.isfinite(v[i]):
+            return False
+    return True
+
+
+@njit
+def _or0(v: float) -> float:
+    return v if math.isfinite(v) else 0.0
+
+
+@njit
+def rate_loop(k: PIDConstants, s: FloatArray, om: FloatArray, wc: FloatArray, first: bool) -> FloatArray:
+    """Body-rate PID: the angular acceleration command for rate set point ``wc`` and
+    measured rates ``om`` (integrators are advanced by the caller, who knows saturation)."""
+    if first:
+        s[P_LAST_RATE : P_LAST_RATE + 3] = om
+        s[P_D_RATE : P_D_RATE + 3] = 0.0
+    alpha = np.empty(3)
+    for i in range(3):
+        raw = (om[i] - s[P_LAST_RATE + i]) / k.dt_s
+        s[P_D_RATE + i] += k.d_alpha * (raw - s[P_D_RATE + i])
+        e = wc[i] - om[i]
+        alpha[i] = k.kp_rate[i] * e + k.ki_rate[i] * s[P_I_RATE + i] - k.kd_rate[i] * s[P_D_RATE + i]
+    s[P_LAST_RATE : P_LAST_RATE + 3] = om
+    return alpha
+
+
+@njit
+def pid_kernel(
+    k: PIDConstants, st: FloatArray, x: FloatArray, ref: FloatArray, hold_integrators: bool,
+    out: FloatArray, diag: FloatArray,
+) -> int:  # fmt: skip
+    """One control tick (the TLC kernel's contract): pitches into ``out``, diagnostics into
+    ``diag`` (same layout as the TLC's), a status code returned; ``st`` changes only when
+    the command is finite."""
+    c = k.plant
+    mg = c.mass_kg * c.gravity_m_s2
+    if not (_finite(x) and _finite(ref[0:3])):
+        out[:] = st[P_LAST_U : P_LAST_U + 4]
+        diag[D_STATUS] = BAD_INPUT
+        return BAD_INPUT
+    s = st.copy()
+    dt = k.dt_s
+    pos, vel, gam, om = x[POS], x[VEL], x[EULER], x[OMEGA]
+    first = s[P_STARTED] == 0.0
+    vr = np.empty(3)
+    ar = np.empty(3)
+    for i in range(3):
+        vr[i] = _or0(ref[REF_VEL + i])
+        ar[i] = _or0(ref[REF_ACC + i])
+    if first:
+        s[:] = 0.0
+        s[P_PSI_C] = math.atan2(vr[1], vr[0]) if math.hypot(vr[0], vr[1]) > k.yaw_hold_speed_m_s else gam[2]
+
+    # --- position P -> velocity set point (trajectory velocity as feed-forward)
+    vsp = vr + k.kp_pos * (ref[REF_POS : REF_POS + 3] - pos)
+    sp = math.sqrt(vsp[0] ** 2 + vsp[1] ** 2 + vsp[2] ** 2)
+    if sp > k.max_speed:
+        vsp *= k.max_speed / sp
+    # --- velocity PI (earth) -> acceleration set point (trajectory acceleration as feed-forward)
+    rt = rot_body_to_earth(gam[0], gam[1], gam[2])
+    ve = vsp - rt @ vel
+    asp = ar + k.kp_vel * ve + k.ki_vel * s[P_I_VEL : P_I_VEL + 3]
+    # --- thrust vector with a tilt limit -> thrust and roll/pitch set point (the TLC's inversion)
+    fc = c.mass_kg * (rt.T @ asp)
+    tilt_limited = limit_tilt(fc, mg, k.tilt_max_rad)
+    tm, phi_c, theta_c = force_to_thrust_attitude(fc, mg)
+    # --- yaw set point: nose along the path, as the TLC
+    dpsi_c = yaw_rate_command(vr[0], vr[1], ar[0], ar[1], k.yaw_hold_speed_m_s)
+    # --- attitude P -> body-rate set point (yaw rate feed-forward), limited
+    ge = np.empty(3)
+    ge[0], ge[1], ge[2] = phi_c - gam[0], theta_c - gam[1], wrap_pi(s[P_PSI_C] - gam[2])
+    de = k.kp_att * ge
+    de[2] += dpsi_c
+    wc = euler_rate_matrix(gam[0], gam[1]) @ de
+    for i in range(3):
+        wc[i] = min(max(wc[i], -k.max_rate[i]), k.max_rate[i])
+    # --- body-rate PID -> torque (rigid-body feed-forward omega x J omega)
+    alpha = rate_loop(k, s, om, wc, first)
+    qc = k.j @ alpha + cross(om, k.j @ om)
+
+    # --- allocation with saturation (the TLC's)
+    lim = k.limits
+    theta_m, sat_m = clip(rotor.pitch_from_thrust_coeff(tm / c.thrust_scale_m, c.a_m, c.s_m), lim[0, 0],
+                          lim[0, 1])  # fmt: skip
+    if sat_m:
+        tm = rotor.thrust_coeff(theta_m, c.a_m, c.s_m) * c.thrust_scale_m
+    qm = main_rotor_torque(tm, c)
+    tt, eps, eta = solve_cyclic_tail(qc, tm, qm, c)
+    theta_t, sat_t = clip(rotor.pitch_from_thrust_coeff(tt / c.thrust_scale_t, c.a_t, c.s_t), lim[1, 0],
+                          lim[1, 1])  # fmt: skip
+    eps, sat_e = clip(eps, lim[2, 0], lim[2, 1])
+    eta, sat_n = clip(eta, lim[3, 0], lim[3, 1])
+    u = np.empty(N_PITCH)
+    u[0], u[1], u[2], u[3] = theta_m, theta_t, eps, eta
+    if not _finite(u) or not _finite(s):
+        out[:] = st[P_LAST_U : P_LAST_U + 4]
+        diag[D_STATUS] = BAD_OUTPUT
+        return BAD_OUTPUT
+
+    # --- integrators: frozen while an output saturates (velocity also while tilt-limited), clamped
+    saturated = sat_m or sat_t or sat_e or sat_n
+    if not hold_integrators:
+        if not (saturated or tilt_limited):
+            for i in range(3):
+                v = s[P_I_VEL + i] + dt * ve[i]
+                lim_v = k.i_max_vel / max(k.ki_vel[i], 1e-9)
+                s[P_I_VEL + i] = min(max(v, -lim_v), lim_v)
+        if not saturated:
+            for i in range(3):
+                v = s[P_I_RATE + i] + dt * (wc[i] - om[i])
+                lim_r = k.i_max_rate / max(k.ki_rate[i], 1e-9)
+                s[P_I_RATE + i] = min(max(v, -lim_r), lim_r)
+    s[P_PSI_C] += dt * dpsi_c
+    s[P_STARTED] = 1.0
+    s[P_LAST_U : P_LAST_U + 4] = u
+    st[:] = s
+    out[:] = u
+    diag[D_PHI_C], diag[D_THETA_C], diag[D_PSI_C] = phi_c, theta_c, s[P_PSI_C]
+    diag[D_TM] = tm
+    diag[D_SAT_MASK] = sat_m * 1 + sat_t * 2 + sat_e * 4 + sat_n * 8
+    diag[D_TILT_LIMITED] = tilt_limited
+    diag[D_STATUS] = OK
+    return OK
+
+
+class PIDController:
+    """The cascaded PID baseline with its state; one ``update`` per control tick (the
+    TLController's interface)."""
+
+    def __init__(self, airframe: Airframe, gains: PidGains, rate_hz: float = 100.0) -> None:
+        self.airframe = airframe
+        self.gains = gains
+        self.rate_hz = float(rate_hz)
+        self.constants = make_pid_constants(airframe, gains, self.rate_hz)
+        self.state = np.zeros(N_PID_STATE)
+        self.diag = np.zeros(N_DIAG)
+        self._out = np.zeros(N_PITCH)
+
+    @property
+    def dt_s(self) -> float:
+        return self.constants.dt_s
+
+    def reset(self) -> None:
+        self.state[:] = 0.0
+
+    def set_gains(self, gains: PidGains) -> None:
+        self.constants = make_pid_constants(self.airframe, gains, self.rate_hz)
+        self.gains = gains
+
+    def set_limits(self, limits: PitchLimits) -> None:
+        self.airframe = dataclasses.replace(self.airframe, limits=limits)
+        self.constants = make_pid_constants(self.airframe, self.gains, self.rate_hz)
+
+    def update(
+        self, t: float, x: FloatArray, ref: FloatArray, *, hold_integrators: bool = False
+    ) -> FloatArray:
+        if x.shape != (N_STATE,) or ref.shape != (N_REF,):
+            raise ValueError(f"state must be ({N_STATE},) and reference ({N_REF},)")
+        pid_kernel(self.constants, self.state, x, ref, hold_integrators, self._out, self.diag)
+        return self._out.copy()
+
+    def warm_up(self, x: FloatArray) -> None:
+        ref = np.zeros(N_REF)
+        ref[0:3] = x[0:3]
+        pid_kernel(self.constants, self.state.copy(), x, ref, False, self._out.copy(), self.diag.copy())
+
+    @property
+    def status(self) -> int:
+        return int(self.diag[D_STATUS])
