@@ -22,7 +22,7 @@ from autopilot.reference import ACC_0 as REF_ACC
 from autopilot.reference import N_REF
 from autopilot.reference import POS_0 as REF_POS
 from autopilot.reference import VEL_0 as REF_VEL
-from autopilot.tlc.allocation import clip, main_rotor_torque, solve_cyclic_tail
+from autopilot.tlc.allocation import allocate
 from autopilot.tlc.controller import (
     BAD_INPUT,
     BAD_OUTPUT,
@@ -37,7 +37,6 @@ from autopilot.tlc.controller import (
     OK,
 )
 from autopilot.tlc.inversion import force_to_thrust_attitude, limit_tilt, yaw_rate_command
-from heli_common import rotor
 from heli_common.airframe import Airframe, PitchLimits, PlantConstants
 from heli_common.jit import njit
 from heli_common.kinematics import cross, euler_rate_matrix, rot_body_to_earth, wrap_pi
@@ -180,26 +179,14 @@ def pid_kernel(
     qc = k.j @ alpha + cross(om, k.j @ om)
 
     # --- allocation with saturation (the TLC's)
-    lim = k.limits
-    theta_m, sat_m = clip(rotor.pitch_from_thrust_coeff(tm / c.thrust_scale_m, c.a_m, c.s_m), lim[0, 0],
-                          lim[0, 1])  # fmt: skip
-    if sat_m:
-        tm = rotor.thrust_coeff(theta_m, c.a_m, c.s_m) * c.thrust_scale_m
-    qm = main_rotor_torque(tm, c)
-    tt, eps, eta = solve_cyclic_tail(qc, tm, qm, c)
-    theta_t, sat_t = clip(rotor.pitch_from_thrust_coeff(tt / c.thrust_scale_t, c.a_t, c.s_t), lim[1, 0],
-                          lim[1, 1])  # fmt: skip
-    eps, sat_e = clip(eps, lim[2, 0], lim[2, 1])
-    eta, sat_n = clip(eta, lim[3, 0], lim[3, 1])
-    u = np.empty(N_PITCH)
-    u[0], u[1], u[2], u[3] = theta_m, theta_t, eps, eta
+    u, tm, sat_mask = allocate(qc, tm, c, k.limits)
     if not _finite(u) or not _finite(s):
         out[:] = st[P_LAST_U : P_LAST_U + 4]
         diag[D_STATUS] = BAD_OUTPUT
         return BAD_OUTPUT
 
     # --- integrators: frozen while an output saturates (velocity also while tilt-limited), clamped
-    saturated = sat_m or sat_t or sat_e or sat_n
+    saturated = sat_mask != 0
     if not hold_integrators:
         if not (saturated or tilt_limited):
             for i in range(3):
@@ -218,7 +205,7 @@ def pid_kernel(
     out[:] = u
     diag[D_PHI_C], diag[D_THETA_C], diag[D_PSI_C] = phi_c, theta_c, s[P_PSI_C]
     diag[D_TM] = tm
-    diag[D_SAT_MASK] = sat_m * 1 + sat_t * 2 + sat_e * 4 + sat_n * 8
+    diag[D_SAT_MASK] = sat_mask
     diag[D_TILT_LIMITED] = tilt_limited
     diag[D_STATUS] = OK
     return OK

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import numpy as np
+
 from heli_common import rotor
 from heli_common.airframe import PlantConstants
 from heli_common.jit import njit
-from heli_common.state import FloatArray
+from heli_common.state import N_PITCH, FloatArray
 
 
 @njit
@@ -40,3 +42,25 @@ def clip(v: float, lo: float, hi: float) -> tuple[float, bool]:
     if v > hi:
         return hi, True
     return v, False
+
+
+@njit
+def allocate(qc: FloatArray, tm: float, c: PlantConstants, lim: FloatArray) -> tuple[FloatArray, float, int]:
+    """Thrust ``tm`` and body torque ``qc`` -> the four pitches (theta_m, theta_t, eps, eta),
+    each clipped to ``lim`` (4 x 2). Returns (pitches, the thrust the clipped collective
+    really gives, saturation mask: 1 theta_m, 2 theta_t, 4 eps, 8 eta)."""
+    theta_m, sat_m = clip(
+        rotor.pitch_from_thrust_coeff(tm / c.thrust_scale_m, c.a_m, c.s_m), lim[0, 0], lim[0, 1]
+    )
+    if sat_m:  # recompute the thrust the clipped collective really gives
+        tm = rotor.thrust_coeff(theta_m, c.a_m, c.s_m) * c.thrust_scale_m
+    qm = main_rotor_torque(tm, c)
+    tt, eps, eta = solve_cyclic_tail(qc, tm, qm, c)
+    theta_t, sat_t = clip(
+        rotor.pitch_from_thrust_coeff(tt / c.thrust_scale_t, c.a_t, c.s_t), lim[1, 0], lim[1, 1]
+    )
+    eps, sat_e = clip(eps, lim[2, 0], lim[2, 1])
+    eta, sat_n = clip(eta, lim[3, 0], lim[3, 1])
+    u = np.empty(N_PITCH)
+    u[0], u[1], u[2], u[3] = theta_m, theta_t, eps, eta
+    return u, tm, sat_m * 1 + sat_t * 2 + sat_e * 4 + sat_n * 8

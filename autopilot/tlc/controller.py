@@ -18,12 +18,11 @@ from autopilot.reference import ACC_0 as REF_ACC
 from autopilot.reference import N_REF
 from autopilot.reference import POS_0 as REF_POS
 from autopilot.reference import VEL_0 as REF_VEL
-from autopilot.tlc.allocation import clip, main_rotor_torque, solve_cyclic_tail
+from autopilot.tlc.allocation import allocate
 from autopilot.tlc.differentiator import DiffCoeffs, diff_reset, diff_step, discretize
 from autopilot.tlc.gains import Gains
 from autopilot.tlc.inversion import force_to_thrust_attitude, limit_tilt, yaw_rate_command
 from autopilot.tlc.loops import a3_matrix, a4_matrix
-from heli_common import rotor
 from heli_common.airframe import Airframe, PitchLimits, PlantConstants
 from heli_common.jit import njit
 from heli_common.kinematics import cross, euler_rate_matrix, rot_body_to_earth, wrap_pi
@@ -190,28 +189,14 @@ def tlc_kernel(
     )
 
     # --- allocation with saturation
-    lim = k.limits
-    theta_m, sat_m = clip(
-        rotor.pitch_from_thrust_coeff(tm / c.thrust_scale_m, c.a_m, c.s_m), lim[0, 0], lim[0, 1]
-    )
-    if sat_m:  # recompute the thrust the clipped collective really gives
-        tm = rotor.thrust_coeff(theta_m, c.a_m, c.s_m) * c.thrust_scale_m
-    qm = main_rotor_torque(tm, c)
-    tt, eps, eta = solve_cyclic_tail(qc, tm, qm, c)
-    theta_t, sat_t = clip(
-        rotor.pitch_from_thrust_coeff(tt / c.thrust_scale_t, c.a_t, c.s_t), lim[1, 0], lim[1, 1]
-    )
-    eps, sat_e = clip(eps, lim[2, 0], lim[2, 1])
-    eta, sat_n = clip(eta, lim[3, 0], lim[3, 1])
-    u = np.empty(N_PITCH)
-    u[0], u[1], u[2], u[3] = theta_m, theta_t, eps, eta
+    u, tm, sat_mask = allocate(qc, tm, c, k.limits)
     if not _all_finite(u) or not _all_finite(s):
         out[:] = st[S_LAST_U : S_LAST_U + 4]
         diag[D_STATUS] = BAD_OUTPUT
         return BAD_OUTPUT
 
     # --- integrators: conditional integration (frozen while any output saturates)
-    saturated = sat_m or sat_t or sat_e or sat_n
+    saturated = sat_mask != 0
     if not hold_integrators:
         if not (saturated or tilt_limited):
             s[S_I1 : S_I1 + 3] += dt * pe
@@ -226,7 +211,7 @@ def tlc_kernel(
     out[:] = u
     diag[D_PHI_C], diag[D_THETA_C], diag[D_PSI_C] = gc[0], gc[1], gc[2]
     diag[D_TM] = tm
-    diag[D_SAT_MASK] = sat_m * 1 + sat_t * 2 + sat_e * 4 + sat_n * 8
+    diag[D_SAT_MASK] = sat_mask
     diag[D_TILT_LIMITED] = tilt_limited
     diag[D_STATUS] = OK
     return OK
