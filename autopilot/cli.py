@@ -11,9 +11,12 @@ import threading
 import time
 from pathlib import Path
 from types import FrameType
+from typing import Any
 
 import numpy as np
 
+from autopilot.control import KernelController
+from autopilot.controllers import CONTROLLER_HELP, CONTROLLERS, build_controller
 from autopilot.estimation.config import EstimatorConfig
 from autopilot.flight.commands import Arm, FlyTrajectory
 from autopilot.flight.manager import FlightConfig, FlightManager
@@ -24,7 +27,7 @@ from autopilot.links.mavlink_sim import SimLink
 from autopilot.links.world_sync import WorldSync
 from autopilot.params_table import ParamTable
 from autopilot.pid.controller import PIDController
-from autopilot.pid.gains import PidGains
+from autopilot.pid.gains import PidGains, default_pid_gains
 from autopilot.runner import Recorder, Runner, RunnerConfig, TickService
 from autopilot.scenario import Scenario
 from autopilot.tlc.controller import TLController
@@ -69,8 +72,7 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--world", default=None, metavar="FILE|PRESET",
                    help="the world the plant flies (configs/world/ presets): its SIM_ parameters' "
                         "starting values; give the plant the same --world")
-    p.add_argument("--controller", choices=("tlc", "pid"), default="tlc",
-                   help="the paper's TLC, or the cascaded PID baseline (configs/gains_pid.toml)")
+    p.add_argument("--controller", choices=CONTROLLERS, default="tlc", help=CONTROLLER_HELP)
     p.add_argument("--pid-gains", default=None, metavar="FILE", help="PID gains (TOML) for --controller pid")
     p.add_argument("--estimator", default=None, metavar="FILE",
                    help="estimator tuning (TOML, docs/estimator.md), used when the plant sends "
@@ -106,19 +108,22 @@ def main(argv: list[str] | None = None) -> int:
     return run_main("heli-autopilot", lambda: run(args, stop))
 
 
-def apply_params(ctrl: TLController | PIDController, manager: FlightManager, table: ParamTable) -> None:
-    """Between two control steps: new gains, pitch limits (integrals and filters kept) and
-    failsafe timeouts. The TLC_ gains are the TLC's: the PID baseline keeps its file's."""
+def apply_params(ctrl: KernelController[Any], manager: FlightManager, table: ParamTable) -> None:
+    """Between two control steps: new gains (the TLC_ set or the PID_ set, whichever flies),
+    pitch limits (integrals and filters kept) and failsafe timeouts."""
     if isinstance(ctrl, TLController):
         ctrl.set_gains(table.gains())
+    elif isinstance(ctrl, PIDController):
+        ctrl.set_gains(table.pid_gains())
     ctrl.set_limits(table.pitch_limits())
     manager.offboard_timeout_s = table.failsafe().offboard_timeout_s
 
 
 def make_gcs(
-    args: argparse.Namespace, sc: Scenario, ctrl: TLController | PIDController, manager: FlightManager,
+    args: argparse.Namespace, sc: Scenario, ctrl: KernelController[Any], manager: FlightManager,
     limits: np.ndarray,
     world: World | None = None,
+    pid_gains: PidGains | None = None,
 ) -> GcsService:
     home = manager.cfg.home
     cfg = GcsConfig(
@@ -128,7 +133,7 @@ def make_gcs(
         system_id=args.sysid,
     )  # fmt: skip
     table = ParamTable(sc.gains, sc.airframe.limits, ctrl.rate_hz, home=home, system_id=args.sysid,
-                       world=world)  # fmt: skip
+                       world=world, pid_gains=pid_gains)  # fmt: skip
     return GcsService(cfg, table, lambda t: apply_params(ctrl, manager, t), limits, manager=manager)
 
 
@@ -144,10 +149,9 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
     world = World.load(args.world) if args.world else None  # refused before anything starts
     estimator = EstimatorConfig.load(args.estimator) if args.estimator else None
     rate = args.rate_hz or sc.run.rate_hz
-    ctrl: TLController | PIDController = TLController(sc.airframe, sc.gains, rate,
-                                                      args.feedforward or sc.run.feedforward)  # fmt: skip
-    if args.controller == "pid":
-        ctrl = PIDController(sc.airframe, PidGains.load(args.pid_gains or "gains_pid.toml"), rate)
+    pid_gains = PidGains.load(args.pid_gains) if args.pid_gains else default_pid_gains()
+    ff = args.feedforward or sc.run.feedforward
+    ctrl = build_controller(args.controller, sc.airframe, sc.gains, rate, ff, pid_gains)
     limits = limits_array(sc.airframe.limits.as_tuple())
     manager = FlightManager(FlightConfig(home=parse_geo_point(args.home, '--home')))
     if args.autostart:
@@ -162,7 +166,7 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
     # flushed in small pieces (20 a second): each costs a fraction of a period
     recorder = Recorder(stream_csv=out / "run.csv", flush_every=max(5, round(rate / 20))) if out else None
     t0_unix_us = int(time.time() * 1e6)
-    gcs = None if args.no_gcs else make_gcs(args, sc, ctrl, manager, limits, world)
+    gcs = None if args.no_gcs else make_gcs(args, sc, ctrl, manager, limits, world, pid_gains)
     servo = with_overrides(load_servo_link(args.links), args.servo_link, args.can_bus, args.actuator_ids)
     can = None
     if servo.link == "can":
@@ -191,7 +195,7 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
             "scenario": sc.run.name if manager.flew_duration(sc.run.duration_s) else None,
             "mode": args.mode, "rate_hz": rate,
             "feedforward": ctrl.feedforward.value if isinstance(ctrl, TLController) else None,
-            "gains": ctrl.gains.name, "controller": "pid" if isinstance(ctrl, PIDController) else None,
+            "gains": ctrl.gains.name, "controller": ctrl.kind,
             "summary_end_s": args.summary_end_s,
             "loop": stats.summary(), "sim_link": link,
             "gcs_link": gcs.stats() if gcs is not None else None,

@@ -17,6 +17,8 @@ all REAL32 (see "Encoding" below):
   MAV_SYS_ID             MAVLink system id (read-only)
   HOME_LAT, HOME_LON     home [deg] (read-only; float32 on the wire: ~1e-6 deg, ~0.1 m)
   HOME_ALT               home altitude AMSL [m] (read-only)
+  PID_*                  the cascaded PID baseline's gains (autopilot/pid/gains.py; PID_PARAMS
+                         below), used when the vehicle flies --controller pid
   SIM_*                  the world's live knobs (heli_common.world.SIM_PARAMS: wind, gust,
                          turbulence, servos), forwarded to the plant; see docs/world.md
 
@@ -54,6 +56,7 @@ from typing import ClassVar
 
 from pymavlink.dialects.v20 import development as mavlink
 
+from autopilot.pid.gains import PID_SECTIONS, PidGains, default_pid_gains
 from autopilot.tlc.gains import CommandLimits, DifferentiatorGains, Gains, LoopGains
 from heli_common.airframe import PitchLimits
 from heli_common.config import spec
@@ -82,6 +85,30 @@ PITCH_FIELDS = (
     ("EPS", "eps_rad"),
     ("ETA", "eta_rad"),
 )
+
+XYZ, RPY = ("X", "Y", "Z"), ("R", "P", "Y")
+#: the PID gains as parameters: name (with _<channel> per element when channels are given),
+#: section of PidGains, field, channels
+PID_PARAMS: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
+    ("PID_POS_P", "position", "kp", XYZ),
+    ("PID_SPEED_MAX", "position", "max_speed_m_s", ()),
+    ("PID_VEL_P", "velocity", "kp", XYZ),
+    ("PID_VEL_I", "velocity", "ki", XYZ),
+    ("PID_VEL_IMAX", "velocity", "i_max_m_s2", ()),
+    ("PID_ATT_P", "attitude", "kp", RPY),
+    ("PID_RMAX", "attitude", "max_rate_rad_s", RPY),
+    ("PID_RATE_P", "rate", "kp", RPY),
+    ("PID_RATE_I", "rate", "ki", RPY),
+    ("PID_RATE_D", "rate", "kd", RPY),
+    ("PID_RATE_DHZ", "rate", "d_filter_hz", ()),
+    ("PID_RATE_IMAX", "rate", "i_max_rad_s2", ()),
+    ("PID_TILT_MAX", "limits", "tilt_max_rad", ()),
+    ("PID_YAW_HOLD_V", "limits", "yaw_hold_speed_m_s", ()),
+)
+
+
+def _pid_names(name: str, channels: tuple[str, ...]) -> list[str]:
+    return [f"{name}_{ch}" for ch in channels] if channels else [name]
 
 
 @dataclass(frozen=True)
@@ -176,6 +203,9 @@ def _build_specs() -> tuple[ParamSpec, ...]:
         ParamSpec("HOME_LON", REAL32, -180.0, 180.0, "deg", ro, "home longitude"),
         ParamSpec("HOME_ALT", REAL32, -1e4, 1e5, "m", ro, "home altitude AMSL"),
     ]
+    for name, section, field_name, chans in PID_PARAMS:
+        for n in _pid_names(name, chans):
+            specs.append(_real(n, PID_SECTIONS[section], field_name, rw, f"PID {section} {field_name}"))
     specs += [ParamSpec(p.name, REAL32, p.lo, p.hi, p.unit, rw, p.description) for p in SIM_PARAMS]
     return tuple(specs)
 
@@ -196,8 +226,10 @@ class ParamTable:
         system_id: int = 1,
         component_id: int = 1,
         world: World | None = None,
+        pid_gains: PidGains | None = None,
     ) -> None:
         self._gains = gains
+        self._pid = pid_gains or default_pid_gains()
         self._world = world or World()
         self._world_now, self._world_at = self._world, 0
         self._pitch = pitch_limits
@@ -227,6 +259,9 @@ class ParamTable:
         values["MAV_SYS_ID"] = system_id
         home_values = (home.lat_deg, home.lon_deg, home.alt_amsl_m) if home else (0.0, 0.0, 0.0)
         values["HOME_LAT"], values["HOME_LON"], values["HOME_ALT"] = home_values
+        for name, section, field_name, chans in PID_PARAMS:
+            v = getattr(getattr(self._pid, section), field_name)
+            values.update(zip(_pid_names(name, chans), v if chans else (v,), strict=True))
         values.update(sim_values(self._world))
         for s in self._specs:
             v = float(values[s.name])
@@ -282,6 +317,7 @@ class ParamTable:
         self._values[name] = v
         try:
             self.gains()
+            self.pid_gains()
             self.pitch_limits()
             self.failsafe()
         except ValueError as exc:
@@ -320,6 +356,16 @@ class ParamTable:
             loop2_position_dynamics=loops[1],
             loop3_attitude_kinematics=loops[2],
             loop4_attitude_dynamics=loops[3],
+        )
+
+    def pid_gains(self) -> PidGains:
+        """The PID baseline's gains with the table's PID_ values."""
+        changed: dict[str, dict[str, object]] = {}
+        for name, section, field_name, channels in PID_PARAMS:
+            vals = tuple(self._values[n] for n in _pid_names(name, channels))
+            changed.setdefault(section, {})[field_name] = vals if channels else vals[0]
+        return replace(
+            self._pid, **{sec: replace(getattr(self._pid, sec), **kw) for sec, kw in changed.items()}
         )
 
     def pitch_limits(self) -> PitchLimits:

@@ -22,14 +22,13 @@ from typing import IO, Any, Protocol
 
 import numpy as np
 
+from autopilot.control import D_PHI_C, D_PSI_C, D_THETA_C, N_DIAG, OK, KernelController
 from autopilot.estimation.config import EstimatorConfig
 from autopilot.estimation.kf import N_EST_LOG
 from autopilot.estimation.onboard import OnboardEstimator
 from autopilot.flight.manager import FlightManager
 from autopilot.flight.modes import Mode
 from autopilot.metrics import CSV_HEADER, FlightRecord, write_rows
-from autopilot.pid.controller import PIDController
-from autopilot.tlc.controller import D_PHI_C, D_PSI_C, D_THETA_C, N_DIAG, OK, TLController
 from heli_common.links import ServoOutput, StateSource
 from heli_common.mavlink.sim_protocol import StateSample
 from heli_common.state import N_PITCH, PHI, PSI, THETA, FloatArray
@@ -228,7 +227,7 @@ class Recorder:
 class Runner:
     def __init__(
         self,
-        ctrl: TLController | PIDController,
+        ctrl: KernelController[Any],
         flight: FlightManager,
         state_in: StateSource | None,
         servo_out: ServoOutput,

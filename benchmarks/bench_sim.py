@@ -15,6 +15,8 @@ from functools import cache
 import numpy as np
 
 from autopilot.metrics import FlightRecord
+from autopilot.pid.controller import PIDController
+from autopilot.pid.gains import default_pid_gains
 from autopilot.scenario import Scenario
 from autopilot.tlc.controller import N_DIAG, TLController, tlc_kernel
 from benchmarks import Row, above, below, bench
@@ -82,9 +84,16 @@ def bench_tlc_step() -> list[Row]:
 
     t_kernel = median_ns(kernel, n) / 1e3
     per_tick = rec.wall_s / (n - 1) * 1e6
+    # the PID baseline along the same states and references (the same contract and cost
+    # of a call; its own flight would differ), against the TLC's measured in this run
+    pid = PIDController(sc.airframe, default_pid_gains(), rec.extra["rate_hz"])
+    pid.update(0.0, rec.x[0], rec.ref[0])
+    pid.reset()
+    t_pid = median_ns(lambda i: pid.update(rec.t_s[i], rec.x[i], rec.ref[i]), n) / 1e3
     return [
         Row("TLC step, TLController.update (median)", t_update, "us", *below(t_update, 50.0)),
         Row("TLC step, tlc_kernel called from Python", t_kernel, "us", *below(t_kernel, 30.0)),
+        Row("PID step, PIDController.update / the TLC step above", t_pid / t_update, "x"),
         Row("closed-loop tick in the compiled loop", per_tick, "us", *below(per_tick, 20.0)),
         Row("replayed commands equal the flight's", float(same), "bool", "1", same),
     ]

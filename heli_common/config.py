@@ -181,6 +181,16 @@ class SimParam:
     description: str
 
 
+def as_table(obj: Any) -> Any:
+    """A config dataclass as the TOML-shaped table its loader takes (tuples as lists); the
+    inverse of :func:`build` (``build(type(obj), as_table(obj), ...) == obj``)."""
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return {f.name: as_table(getattr(obj, f.name)) for f in dataclasses.fields(obj) if f.init}
+    if isinstance(obj, tuple):
+        return [as_table(v) for v in obj]
+    return obj
+
+
 def to_toml(table: Mapping[str, Any]) -> str:
     """A TOML text of a table of numbers, booleans, strings, arrays and sub-tables (what
     this project's loaders read back), for writing a configuration built in code."""

@@ -86,6 +86,43 @@ def _simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _tune(args: argparse.Namespace) -> int:
+    from autopilot.pid.gains import PidGains
+    from autopilot.scenario import Scenario
+    from heli_sitl.tune import tune, write_gains
+
+    scenario = Scenario.load(args.scenario, gains=args.gains if args.controller == "tlc" else None)
+    start = PidGains.load(args.gains) if args.controller == "pid" and args.gains else None
+    last = [0]
+
+    def progress(n: int, best: float) -> None:
+        if not args.quiet and n >= last[0] + 50:
+            last[0] = n
+            print(f"  {n} evaluations, best cost {best:.4f} m", flush=True)
+
+    r = tune(scenario, args.controller, args.budget, args.feedforward, start, progress)
+    print(f"{args.controller}: cost {r.cost(r.start_flights):.4f} m -> {r.cost(r.best_flights):.4f} m "
+          f"in {r.evaluations} evaluations, {r.wall_s:.0f} s")  # fmt: skip
+    print(f"{'knob':34s} {'start':>10s} {'tuned':>10s}")
+    for k, a, b in zip(r.knobs, r.start, r.best, strict=True):
+        print(f"{k.name:34s} {a:10.4g} {b:10.4g}")
+    for f in r.best_flights:
+        print(f"  {f.describe()}")
+    out = Path(args.out)
+    command = "heli-sitl tune " + " ".join(sys.argv[2:]) if sys.argv[1:2] == ["tune"] else "heli_sitl.tune"
+    write_gains(r, out, command)
+    print(f"wrote {out}")
+    return 0
+
+
+def _compare(args: argparse.Namespace) -> int:
+    from heli_sitl.compare import command_line, run_compare
+
+    run_compare(args.file, Path(args.out), Path(args.work), samples=args.samples, workers=args.workers,
+                quiet=args.quiet, command=command_line())  # fmt: skip
+    return 0
+
+
 def _run(args: argparse.Namespace) -> int:
     import logging
     import signal
@@ -140,6 +177,9 @@ def _run(args: argparse.Namespace) -> int:
                 can.close()
     if args.verbose:
         print(json.dumps({**stats.__dict__, "link": link.stats.as_dict()}), file=sys.stderr)
+    if stats.lost:
+        print(f"heli-sitl: {stats.lost}", file=sys.stderr)
+        return Exit.FAILURE
     return 0
 
 
@@ -154,7 +194,7 @@ def _up(args: argparse.Namespace) -> int:
         mode=args.mode, rate_hz=args.rate_hz, scenario=args.scenario, in_air=args.in_air,
         gcs_port=args.gcs_port, api_port=args.api_port, local_gcs_port=args.local_gcs_port,
         local_api_port=args.local_api_port, signing_key=args.signing_key, out=args.out,
-        sysid=args.sysid, world=args.world,
+        sysid=args.sysid, world=args.world, extra_autopilot_args=controller_args(args),
     )  # fmt: skip
     try:
         serve(opts)
@@ -178,7 +218,8 @@ def _demo(args: argparse.Namespace) -> int:
     opts = DemoOptions(mode=args.mode, rate_hz=args.rate_hz, scenario=args.scenario, out=out,
                        duration_s=args.duration_s, servo_link=args.servo_link,
                        can_bus=args.can_bus, via_ground=not args.autostart, world=args.world,
-                       extra_autopilot_args=("--gains", args.gains) if args.gains else ())  # fmt: skip
+                       extra_autopilot_args=(("--gains", args.gains) if args.gains else ())
+                       + controller_args(args))  # fmt: skip
     try:
         summary = run_demo(opts)
     except DemoError as exc:
@@ -214,20 +255,28 @@ def _campaign(args: argparse.Namespace) -> int:
     from heli_sitl.campaign.run import run_campaign
 
     summary = run_campaign(args.file, Path(args.out), samples=args.samples, workers=args.workers,
-                           scheduler=args.scheduler, quiet=args.quiet)  # fmt: skip
+                           scheduler=args.scheduler, quiet=args.quiet,
+                           controller=args.controller)  # fmt: skip
     if args.via == "processes":
         from heli_sitl.campaign.via_processes import compare
 
-        compare(args.file, Path(args.out), args.limit, samples=args.samples, quiet=args.quiet)
+        compare(args.file, Path(args.out), args.limit, samples=args.samples, quiet=args.quiet,
+                controller=args.controller)  # fmt: skip
     counts = summary["counts"]
     assert isinstance(counts, dict)
     return 0
 
 
 def add_controller_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--controller", choices=("tlc", "pid"), default="tlc",
-                   help="the paper's TLC, or the cascaded PID baseline (configs/gains_pid.toml)")
+    from autopilot.controllers import CONTROLLER_HELP, CONTROLLERS
+
+    p.add_argument("--controller", choices=CONTROLLERS, default="tlc", help=CONTROLLER_HELP)
     p.add_argument("--pid-gains", default=None, metavar="FILE", help="PID gains (TOML) for --controller pid")
+
+
+def controller_args(args: argparse.Namespace) -> tuple[str, ...]:
+    """The autopilot process's arguments for the controller chosen on this command line."""
+    return ("--controller", args.controller) + (("--pid-gains", args.pid_gains) if args.pid_gains else ())
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -289,6 +338,7 @@ def build_parser() -> argparse.ArgumentParser:
     u.add_argument("--signing-key", default=None)
     u.add_argument("--out", default=None, help="autopilot writes run.csv/summary/tlog here on exit")
     u.add_argument("--world", default=None, metavar="FILE|PRESET", help=WORLD_HELP)
+    add_controller_args(u)
     u.set_defaults(func=_up)
 
     d = sub.add_parser("demo", help="plant + autopilot as processes, fly the scenario")
@@ -303,7 +353,29 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--out", required=True)
     d.add_argument("--world", default=None, metavar="FILE|PRESET", help=WORLD_HELP)
     d.add_argument("--gains", default=None, metavar="FILE", help=GAINS_HELP)
+    add_controller_args(d)
     d.set_defaults(func=_demo)
+
+    t = sub.add_parser("tune", help="tune a controller's gains on the paper scenario (docs/comparison.md)")
+    t.add_argument("--controller", choices=("tlc", "pid"), required=True)
+    t.add_argument("--out", required=True, metavar="FILE", help="the tuned gains (TOML) to write")
+    t.add_argument("--budget", type=arg.count, default=2000, help="cost evaluations (three flights each)")
+    t.add_argument("--scenario", default="paper")
+    t.add_argument("--gains", default=None, metavar="FILE", help="start from these gains (default: shipped)")
+    t.add_argument("--feedforward", choices=("pseudo", "exact"), default=None,
+                   help="the TLC's feed-forward (default: the scenario's)")
+    t.add_argument("--quiet", action="store_true")
+    t.set_defaults(func=_tune)
+
+    k = sub.add_parser("compare", help="the controllers side by side: nominal, worlds, campaigns; report")
+    k.add_argument("file", nargs="?", default="compare.toml",
+                   help="comparison TOML (default: configs/compare.toml)")
+    k.add_argument("--out", required=True, help="report, figures and numbers (e.g. docs/comparison)")
+    k.add_argument("--work", default="out/compare", help="the campaigns' Parquet rows (a re-run resumes)")
+    k.add_argument("--samples", type=arg.count, default=None, help="Monte Carlo campaigns: flights each")
+    k.add_argument("--workers", type=arg.count, default=None, help="embedded cluster size (default: cores)")
+    k.add_argument("--quiet", action="store_true")
+    k.set_defaults(func=_compare)
 
     c = sub.add_parser("campaign", help="fly a campaign of flights in-process on Dask; Parquet, figures")
     c.add_argument("file", help="campaign TOML, or a name in configs/campaigns/ (robustness, ...)")
@@ -314,6 +386,8 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--via", choices=("inprocess", "processes"), default="inprocess",
                    help="processes: also fly the first --limit samples through the process stack and compare")
     c.add_argument("--limit", type=arg.count, default=3, help="samples flown through processes (--via)")
+    c.add_argument("--controller", choices=("tlc", "pid"), default=None,
+                   help="fly every sample with this controller (default: the file's, else tlc)")
     c.add_argument("--quiet", action="store_true", help="no progress bar, no table")
     c.set_defaults(func=_campaign)
     return p

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-import functools
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -23,7 +22,7 @@ from autopilot.estimation.config import EstimatorConfig
 from autopilot.estimation.kf import K_N_BUF, N_EST_LOG, est_init, est_tick, log_tick, make_params, state_size
 from autopilot.metrics import FlightRecord
 from autopilot.pid.controller import PIDConstants, PIDController, pid_kernel
-from autopilot.pid.gains import PidGains
+from autopilot.pid.gains import PidGains, default_pid_gains
 from autopilot.scenario import Scenario
 from autopilot.tlc.controller import (
     N_DIAG,
@@ -45,11 +44,6 @@ from heli_sitl.plant.world.model import N_WP, N_WS, WS_AIR, WS_PITCH, AirConstan
 Progress = Callable[[int, int], None]
 CHUNK_TICKS = 500  # progress granularity; each chunk is one compiled call
 
-
-@functools.cache
-def default_pid_gains() -> PidGains:
-    """configs/gains_pid.toml, read once (a campaign simulates thousands of flights)."""
-    return PidGains.load()
 
 LS_ON_GROUND = 0  # the loop's own state across chunks: the vehicle rests on the ground
 
@@ -208,9 +202,8 @@ def simulate(
     extra: dict[str, object] = {
         "scenario": run.name, "rate_hz": rate_hz, "feedforward": ctrl.feedforward.value,
         "plant_substeps": plant.substeps, "gains": pid.gains.name if use_pid else scenario.gains.name,
+        "controller": opts.controller,
     }  # fmt: skip
-    if use_pid:
-        extra["controller"] = "pid"
     if plant.world is not None or sn.on:
         extra["world"] = plant.world_config.describe(scenario.airframe)
     if sn.on:

@@ -140,6 +140,7 @@ class UpOptions:
     autopilot_port: int = 0
     sysid: int = 1
     world: str | None = None
+    extra_autopilot_args: tuple[str, ...] = ()  # e.g. the controller: ("--controller", "pid")
 
 
 def up_commands(opts: UpOptions) -> list[tuple[str, list[str]]]:
@@ -162,7 +163,7 @@ def up_commands(opts: UpOptions) -> list[tuple[str, list[str]]]:
     ] + (["--world", opts.world] if opts.world else []) + (
         ["--signing-key", opts.signing_key] if opts.signing_key else []) + (
         ["--out", opts.out] if opts.out else []
-    )  # fmt: skip
+    ) + list(opts.extra_autopilot_args)  # fmt: skip
     return [("plant", plant), ("autopilot", autopilot)]
 
 

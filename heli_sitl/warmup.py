@@ -31,9 +31,11 @@ def main() -> None:
     plant = Plant(sc.airframe, x)
     plant.set_pitches(np.zeros(4))
     plant.step(0.01)
-    from autopilot.tlc.controller import TLController
+    from autopilot.controllers import CONTROLLERS, build_controller
 
-    TLController(sc.airframe, sc.gains).update(0.0, x, sc.trajectory.sample(np.zeros(1))[0])
+    ref = sc.trajectory.sample(np.zeros(1))[0]
+    for kind in CONTROLLERS:
+        build_controller(kind, sc.airframe, sc.gains, 100.0).update(0.0, x, ref)
     print(f"heli_sitl.warmup: compiled code ready in {time.perf_counter() - t0:.1f} s")
 
 

@@ -128,6 +128,10 @@ BAD = [
         "the mean must lie within",
     ),
     ('world = "nowhere"\n[[vary]]\nkey = "plant.mismatch.mass"\nlow = 0.9\nhigh = 1.1\n', "nowhere"),
+    ('controller = "lqr"\n[[vary]]\nkey = "plant.mismatch.mass"\nlow = 0.9\nhigh = 1.1\n', "controller"),
+    ('feedforward = "x"\n[[vary]]\nkey = "plant.mismatch.mass"\nlow = 0.9\nhigh = 1.1\n', "feedforward"),
+    ('controller = "pid"\n[[vary]]\nkey = "pid.rate.kq"\nlow = 1.0\nhigh = 2.0\n', "pid.rate.kq"),
+    ('controller = "pid"\n[[vary]]\nkey = "pid.rate.kp"\nlow = 1.0\nhigh = 900.0\n', "pid.rate.kp"),
 ]
 
 
@@ -141,6 +145,35 @@ def test_bad_campaign_files_are_refused_before_flying_naming_the_key(
         prepare(f)
     msg = str(err.value)
     assert expected in msg and "\n" not in msg, msg
+
+
+def test_the_controller_is_a_campaign_key_and_its_gains_can_vary(tmp_path: Path) -> None:
+    """``controller = "pid"`` (or ``--controller pid``) flies the PID baseline: a row is the
+    metrics of that very flight; ``pid.*`` varies its gains; the same samples either way."""
+    import dataclasses
+
+    from autopilot.pid.gains import default_pid_gains
+    from autopilot.scenario import Scenario
+    from heli_sitl.campaign.flight import fly, metrics
+    from heli_sitl.closed_loop import SimOptions, simulate
+
+    f = tmp_path / "c.toml"
+    f.write_text('samples = 2\nseed = 4\nduration_s = 20.0\n[[vary]]\nkey = "pid.rate.kp"\n'
+                 "low = 4.0\nhigh = 8.0\n")  # fmt: skip
+    spec_t, base_t, table_t = prepare(f)
+    spec_p, base_p, table_p = prepare(f, controller="pid")
+    assert spec_t.controller == "tlc" and spec_p.controller == "pid" and base_p.controller == "pid"
+    np.testing.assert_array_equal(table_t, table_p)
+    kp = float(table_p[0, 0])
+    row_p = fly(spec_p, base_p, 0, spec_p.keys, [kp])
+    row_t = fly(spec_t, base_t, 0, spec_t.keys, [kp])
+    assert not row_p["failed"] and not row_t["failed"]
+    pid = base_p.pid_gains or default_pid_gains()
+    gains = dataclasses.replace(pid, rate=dataclasses.replace(pid.rate, kp=(kp, kp, kp)))
+    rec = simulate(Scenario.load("paper"), SimOptions(duration_s=20.0, controller="pid", pid_gains=gains))
+    direct = metrics(rec, spec_p)
+    assert row_p["rms_0_m"] == direct["rms_0_m"] and row_p["pitch_travel_rad"] == direct["pitch_travel_rad"]
+    assert row_t["rms_0_m"] != row_p["rms_0_m"]  # the TLC ignores pid.*: another flight
 
 
 def test_shipped_campaigns_are_valid_and_sized_as_documented() -> None:

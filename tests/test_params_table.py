@@ -62,7 +62,8 @@ def f32(x: float) -> float:
 
 def test_names_are_unique_short_and_stable() -> None:
     names = [s.name for s in SPECS]
-    assert len(names) == len(set(names)) == 61  # 43 of the vehicle, 10 SIM_ of the world, 8 of its sensors
+    # 43 of the vehicle, 30 PID_ of the baseline, 10 SIM_ of the world, 8 of its sensors
+    assert len(names) == len(set(names)) == 91
     assert all(0 < len(n) <= 16 and n.isascii() and n.upper() == n for n in names)
     assert names[:3] == ["TLC_L1_W_X", "TLC_L1_W_Y", "TLC_L1_W_Z"]
     for required in (
@@ -317,17 +318,39 @@ def test_param_value_round_trips_through_a_gcs_set(name: str) -> None:
     assert table.get(name) == before
 
 
-def test_gains_dataclass_fields_all_mapped() -> None:
-    """Every float in Gains has a parameter (a new gain field must get a name)."""
-    n_floats = 0
-    for f in dataclasses.fields(Gains):
-        value = getattr(GAINS, f.name)
+def numbers_in(gains: object) -> int:
+    """How many numbers a gain set's sections hold (an array counts its elements)."""
+    n = 0
+    for f in dataclasses.fields(gains):  # type: ignore[arg-type]
+        value = getattr(gains, f.name)
         if dataclasses.is_dataclass(value):
             for sub in dataclasses.fields(value):
                 v = getattr(value, sub.name)
-                n_floats += len(v) if isinstance(v, tuple) else 1
+                n += len(v) if isinstance(v, tuple) else 1
+    return n
+
+
+def test_gains_dataclass_fields_all_mapped() -> None:
+    """Every float in Gains has a parameter (a new gain field must get a name)."""
     gain_params = [s for s in SPECS if s.name.startswith("TLC_") and s.name != "TLC_RATE_HZ"]
-    assert len(gain_params) == n_floats
+    assert len(gain_params) == numbers_in(GAINS)
+
+
+def test_pid_gains_all_mapped_and_live() -> None:
+    """Every number in PidGains has a PID_ parameter; the table starts at the loaded gains,
+    and a set changes just that element of the typed view."""
+    from autopilot.pid.gains import PidGains
+
+    pid = PidGains.load()
+    assert len([s for s in SPECS if s.name.startswith("PID_")]) == numbers_in(pid)
+    t = ParamTable(GAINS, AIRFRAME.limits, 100.0, pid_gains=pid)
+    assert t.pid_gains() == pid
+    assert t.get("PID_RATE_P_Y") == pid.rate.kp[2] and t.get("PID_TILT_MAX") == pid.limits.tilt_max_rad
+    assert t.set("PID_RATE_P_P", 21.5, armed=True).accepted
+    assert t.set("PID_VEL_IMAX", 99.0).accepted is False  # out of its range in gains.py
+    got = t.pid_gains()
+    assert got.rate.kp == (pid.rate.kp[0], 21.5, pid.rate.kp[2])
+    assert dataclasses.replace(got, rate=pid.rate) == pid
 
 
 def test_the_world_knobs_read_and_set_as_parameters() -> None:

@@ -147,3 +147,28 @@ def test_a_restarted_plant_is_recognised_and_the_vehicle_disarmed(tmp_path: Path
                 p.kill()
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["loop"]["plant_sessions"] == 1
+
+
+def test_a_vehicle_lost_in_lockstep_ends_the_run_at_once_saying_so(tmp_path: Path) -> None:
+    """A start 99 km from the trajectory: the TLC accelerates at its tilt limit for nearly a
+    minute and tumbles at a speed no helicopter has (in-process: its state leaves the range
+    the sim link accepts at 55.5 s). The plant ends the run with "vehicle lost" and the
+    launcher says so at once, instead of waiting out its timeout for an answer to a state
+    no autopilot accepts."""
+    from heli_sitl.demo import DemoError, DemoOptions, run_demo
+
+    configs = Path(__file__).resolve().parent.parent / "configs"
+    text = (configs / "scenario_paper.toml").read_text()
+    text = text.replace("pos_nwu_m = [3.0, -3.0, 3.0]", "pos_nwu_m = [-99000.0, 0.0, 20.0]")
+    for name in ("xcell60.toml", "gains_paper.toml"):
+        text = text.replace(f'"{name}"', f'"{configs / name}"')
+    far = tmp_path / "far.toml"
+    far.write_text(text)
+    assert "-99000.0" in text
+    t0 = time.monotonic()
+    with pytest.raises(DemoError, match="vehicle lost") as err:
+        run_demo(DemoOptions(mode="lockstep", scenario=str(far), out=tmp_path / "run", timeout_s=300,
+                             via_ground=False, duration_s=90.0))  # fmt: skip
+    took = time.monotonic() - t0
+    print(f"{err.value} after {took:.1f} s")
+    assert took < 120.0 and "plant" in str(err.value)

@@ -13,6 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from numpy.testing import assert_allclose
 
+from autopilot.reference import N_REF
 from autopilot.tlc.allocation import main_rotor_torque, solve_cyclic_tail
 from autopilot.tlc.controller import (
     BAD_INPUT,
@@ -20,7 +21,6 @@ from autopilot.tlc.controller import (
     D_PSI_C,
     D_SAT_MASK,
     D_STATUS,
-    N_REF,
     OK,
     S_I1,
     TLCConstants,

@@ -11,19 +11,12 @@ whole law is one compiled kernel (:func:`pid_kernel`) over a flat state with nam
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from typing import NamedTuple
 
 import numpy as np
 
-from autopilot.pid.gains import PidGains
-from autopilot.reference import ACC_0 as REF_ACC
-from autopilot.reference import N_REF
-from autopilot.reference import POS_0 as REF_POS
-from autopilot.reference import VEL_0 as REF_VEL
-from autopilot.tlc.allocation import allocate
-from autopilot.tlc.controller import (
+from autopilot.control import (
     BAD_INPUT,
     BAD_OUTPUT,
     D_PHI_C,
@@ -33,14 +26,20 @@ from autopilot.tlc.controller import (
     D_THETA_C,
     D_TILT_LIMITED,
     D_TM,
-    N_DIAG,
     OK,
+    Kernel,
+    KernelController,
 )
+from autopilot.pid.gains import PidGains
+from autopilot.reference import ACC_0 as REF_ACC
+from autopilot.reference import POS_0 as REF_POS
+from autopilot.reference import VEL_0 as REF_VEL
+from autopilot.tlc.allocation import allocate
 from autopilot.tlc.inversion import force_to_thrust_attitude, limit_tilt, yaw_rate_command
-from heli_common.airframe import Airframe, PitchLimits, PlantConstants
+from heli_common.airframe import Airframe, PlantConstants
 from heli_common.jit import njit
 from heli_common.kinematics import cross, euler_rate_matrix, rot_body_to_earth, wrap_pi
-from heli_common.state import EULER, N_PITCH, N_STATE, OMEGA, POS, VEL, FloatArray
+from heli_common.state import EULER, OMEGA, POS, VEL, FloatArray
 
 # controller state layout
 P_I_VEL = 0  # (3) velocity-error integral, earth NWU
@@ -211,47 +210,15 @@ def pid_kernel(
     return OK
 
 
-class PIDController:
-    """The cascaded PID baseline with its state; one ``update`` per control tick (the
-    TLController's interface)."""
+class PIDController(KernelController[PidGains]):
+    """The cascaded PID baseline with its state; one ``update`` per control tick."""
 
-    def __init__(self, airframe: Airframe, gains: PidGains, rate_hz: float = 100.0) -> None:
-        self.airframe = airframe
-        self.gains = gains
-        self.rate_hz = float(rate_hz)
-        self.constants = make_pid_constants(airframe, gains, self.rate_hz)
-        self.state = np.zeros(N_PID_STATE)
-        self.diag = np.zeros(N_DIAG)
-        self._out = np.zeros(N_PITCH)
+    kind = "pid"
+    n_state = N_PID_STATE
 
-    @property
-    def dt_s(self) -> float:
-        return self.constants.dt_s
+    def _make_constants(self) -> PIDConstants:
+        return make_pid_constants(self.airframe, self.gains, self.rate_hz)
 
-    def reset(self) -> None:
-        self.state[:] = 0.0
-
-    def set_gains(self, gains: PidGains) -> None:
-        self.constants = make_pid_constants(self.airframe, gains, self.rate_hz)
-        self.gains = gains
-
-    def set_limits(self, limits: PitchLimits) -> None:
-        self.airframe = dataclasses.replace(self.airframe, limits=limits)
-        self.constants = make_pid_constants(self.airframe, self.gains, self.rate_hz)
-
-    def update(
-        self, t: float, x: FloatArray, ref: FloatArray, *, hold_integrators: bool = False
-    ) -> FloatArray:
-        if x.shape != (N_STATE,) or ref.shape != (N_REF,):
-            raise ValueError(f"state must be ({N_STATE},) and reference ({N_REF},)")
-        pid_kernel(self.constants, self.state, x, ref, hold_integrators, self._out, self.diag)
-        return self._out.copy()
-
-    def warm_up(self, x: FloatArray) -> None:
-        ref = np.zeros(N_REF)
-        ref[0:3] = x[0:3]
-        pid_kernel(self.constants, self.state.copy(), x, ref, False, self._out.copy(), self.diag.copy())
-
-    @property
-    def status(self) -> int:
-        return int(self.diag[D_STATUS])
+    @staticmethod
+    def kernel() -> Kernel:
+        return pid_kernel  # type: ignore[no-any-return]

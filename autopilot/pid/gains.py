@@ -3,6 +3,7 @@ the earth loops and (roll, pitch, yaw) about the body axes in the attitude and r
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -57,3 +58,19 @@ class PidGains:
     @classmethod
     def load(cls, path: str | Path = "gains_pid.toml") -> PidGains:
         return load(cls, path)
+
+
+#: each section of PidGains by its field name
+PID_SECTIONS: dict[str, type] = {
+    "position": PositionGains,
+    "velocity": VelocityGains,
+    "attitude": AttitudeGains,
+    "rate": RateGains,
+    "limits": PidLimits,
+}
+
+
+@functools.cache
+def default_pid_gains() -> PidGains:
+    """configs/gains_pid.toml, read once (a campaign simulates thousands of flights)."""
+    return PidGains.load()

@@ -7,15 +7,28 @@ time and must call ``update`` once per control period (zero-order hold on the ou
 
 from __future__ import annotations
 
-import dataclasses
 import enum
 import math
 from typing import NamedTuple
 
 import numpy as np
 
+from autopilot.control import (
+    BAD_INPUT,
+    BAD_OUTPUT,
+    D_PHI_C,
+    D_PSI_C,
+    D_SAT_MASK,
+    D_STATUS,
+    D_THETA_C,
+    D_TILT_LIMITED,
+    D_TM,
+    N_DIAG,
+    OK,
+    Kernel,
+    KernelController,
+)
 from autopilot.reference import ACC_0 as REF_ACC
-from autopilot.reference import N_REF
 from autopilot.reference import POS_0 as REF_POS
 from autopilot.reference import VEL_0 as REF_VEL
 from autopilot.tlc.allocation import allocate
@@ -23,10 +36,10 @@ from autopilot.tlc.differentiator import DiffCoeffs, diff_reset, diff_step, disc
 from autopilot.tlc.gains import Gains
 from autopilot.tlc.inversion import force_to_thrust_attitude, limit_tilt, yaw_rate_command
 from autopilot.tlc.loops import a3_matrix, a4_matrix
-from heli_common.airframe import Airframe, PitchLimits, PlantConstants
+from heli_common.airframe import Airframe, PlantConstants
 from heli_common.jit import njit
 from heli_common.kinematics import cross, euler_rate_matrix, rot_body_to_earth, wrap_pi
-from heli_common.state import EULER, N_PITCH, N_STATE, OMEGA, POS, VEL, FloatArray
+from heli_common.state import EULER, OMEGA, POS, VEL, FloatArray
 
 # reference vector (earth NWU): commanded position and, where known, its derivatives
 
@@ -40,13 +53,6 @@ S_PSI_C = 36  # yaw command integral
 S_STARTED = 37  # 0 until the first update initialised the filters
 S_LAST_U = 38  # last valid output (4)
 N_CTRL_STATE = 42
-
-# diagnostics written each tick
-D_PHI_C, D_THETA_C, D_PSI_C, D_TM, D_SAT_MASK, D_TILT_LIMITED, D_STATUS = range(7)
-N_DIAG = 7
-
-# status codes
-OK, BAD_INPUT, BAD_OUTPUT = 0, 1, 2
 
 
 class Feedforward(enum.Enum):
@@ -217,8 +223,11 @@ def tlc_kernel(
     return OK
 
 
-class TLController:
+class TLController(KernelController[Gains]):
     """The trajectory linearization controller with its state; one ``update`` per control tick."""
+
+    kind = "tlc"
+    n_state = N_CTRL_STATE
 
     def __init__(
         self,
@@ -227,56 +236,16 @@ class TLController:
         rate_hz: float = 100.0,
         feedforward: Feedforward | str = Feedforward.PSEUDO,
     ) -> None:
-        self.airframe = airframe
         self.feedforward = Feedforward(feedforward)
-        self.rate_hz = float(rate_hz)
-        self.constants = make_constants(airframe, gains, self.rate_hz, self.feedforward)
-        self.gains = gains
-        self.state = np.zeros(N_CTRL_STATE)
-        self.diag = np.zeros(N_DIAG)
-        self._out = np.zeros(N_PITCH)
+        super().__init__(airframe, gains, rate_hz)
 
-    @property
-    def dt_s(self) -> float:
-        return self.constants.dt_s
+    def _make_constants(self) -> TLCConstants:
+        return make_constants(self.airframe, self.gains, self.rate_hz, self.feedforward)
 
-    def reset(self) -> None:
-        """Forget integrals and filter states; the next update re-initialises them."""
-        self.state[:] = 0.0
+    @staticmethod
+    def kernel() -> Kernel:
+        return tlc_kernel  # type: ignore[no-any-return]
 
-    def set_gains(self, gains: Gains) -> None:
-        """New gains take effect from the next update; integrals and filters are kept."""
-        self.constants = make_constants(self.airframe, gains, self.rate_hz, self.feedforward)
-        self.gains = gains
 
-    def set_limits(self, limits: PitchLimits) -> None:
-        """New pitch limits from the next update."""
-        self.airframe = dataclasses.replace(self.airframe, limits=limits)
-        self.constants = make_constants(self.airframe, self.gains, self.rate_hz, self.feedforward)
-
-    def update(
-        self, t: float, x: FloatArray, ref: FloatArray, *, hold_integrators: bool = False
-    ) -> FloatArray:
-        """Pitches [rad] (theta_m, theta_t, eps, eta) for measured state ``x`` (NWU/FLU) and
-        reference ``ref`` (pos, vel, acc in NWU; vel/acc may be NaN where unknown).
-
-        ``t`` is the tick time; the law is time-invariant given ``ref`` and does not read it.
-        Returns a new array; a non-finite input yields the last valid command.
-        """
-        if x.shape != (N_STATE,) or ref.shape != (N_REF,):
-            raise ValueError(f"state must be ({N_STATE},) and reference ({N_REF},)")
-        tlc_kernel(self.constants, self.state, x, ref, hold_integrators, self._out, self.diag)
-        return self._out.copy()
-
-    def warm_up(self, x: FloatArray) -> None:
-        """Run the kernel once on throwaway copies (a hold at ``x``): numba loads compiled
-        code on a function's first call, tens of milliseconds that a real-time loop's first
-        tick must not pay. Nothing of this controller changes."""
-        ref = np.zeros(N_REF)
-        ref[0:3] = x[0:3]
-        state, out, diag = self.state.copy(), self._out.copy(), self.diag.copy()
-        tlc_kernel(self.constants, state, x, ref, False, out, diag)
-
-    @property
-    def status(self) -> int:
-        return int(self.diag[D_STATUS])
+__all__ = ["BAD_INPUT", "BAD_OUTPUT", "D_PHI_C", "D_PSI_C", "D_SAT_MASK", "D_STATUS", "D_THETA_C",
+           "D_TILT_LIMITED", "D_TM", "N_DIAG", "OK", "Feedforward", "TLController", "tlc_kernel"]  # fmt: skip

@@ -26,6 +26,8 @@ METRIC_DOC = {
     "max_tilt_rad": "largest tilt, arccos(cos(phi) cos(theta)) [rad]",
     "saturated_ticks": "ticks with a pitch command at its limit",
     "max_servo_rate_rad_s": "largest commanded pitch rate of any channel [rad/s]",
+    "pitch_travel_rad": "control effort: the commanded pitches' total travel, sum over the four "
+    "channels of |change| tick to tick [rad]",
     "converge_s": "time from which the error stays below converge_m to the end (NaN: never) [s]",
     "converged": "1: the error stays below converge_m from some time to the end",
     "diverged": "1: non-finite state, or not converged after a tumble (tilt > 90 deg) or a run-away "
@@ -54,6 +56,7 @@ def metrics(rec: FlightRecord, spec: CampaignSpec) -> dict[str, Any]:
     out["max_tilt_rad"] = float(np.nanmax(tilt)) if tilt.size else math.nan
     out["saturated_ticks"] = int(s["saturated_ticks"])
     out["max_servo_rate_rad_s"] = float(np.nanmax(rate)) if rate.size else math.nan
+    out["pitch_travel_rad"] = float(np.nansum(np.abs(np.diff(rec.pitches, axis=0))))
     err = rec.pos_err_m
     above = np.flatnonzero(~(err < spec.converge_m))  # NaN counts as above
     t_end = float(rec.t_s[-1])
@@ -89,7 +92,8 @@ def fly(
             settings["world.seed"] = float(flight_seed(spec, sample_id))
         f = apply(base, settings)
         row["seed"] = f.world.seed
-        opts = SimOptions(world=f.world, estimator=f.estimator, duration_s=spec.duration_s)
+        opts = SimOptions(world=f.world, estimator=f.estimator, duration_s=spec.duration_s,
+                          controller=f.controller, pid_gains=f.pid_gains)  # fmt: skip
         rec = simulate(f.scenario, opts)
         row["wall_s"] = rec.wall_s
         row.update(metrics(rec, spec))

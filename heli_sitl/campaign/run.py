@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from autopilot.estimation.config import EstimatorConfig
+from autopilot.pid.gains import PidGains
 from autopilot.scenario import Scenario
 from heli_common.config import ConfigError
 from heli_common.world import World
@@ -33,9 +34,12 @@ ID_FILE = "campaign-id.json"
 
 def base_flight(spec: CampaignSpec) -> Flight:
     sc = Scenario.load(spec.scenario, gains=spec.gains or None)
+    if spec.feedforward:
+        sc = dataclasses.replace(sc, run=dataclasses.replace(sc.run, feedforward=spec.feedforward))
     world = World.load(spec.world) if spec.world else World()
     est = EstimatorConfig.load(spec.estimator) if spec.estimator else EstimatorConfig()
-    return Flight(sc, world, est)
+    pid = PidGains.load(spec.pid_gains) if spec.pid_gains else None
+    return Flight(sc, world, est, spec.controller, pid)
 
 
 def _probes(v: Vary) -> list[float]:
@@ -46,10 +50,15 @@ def _probes(v: Vary) -> list[float]:
     return [v.low, v.high] + ([v.mean] if v.dist == "truncnormal" else [])
 
 
-def prepare(path: str | Path, samples: int | None = None) -> tuple[CampaignSpec, Flight, np.ndarray]:
-    """The checked campaign, its base flight and its sample table; ConfigError naming the
-    key for anything wrong, before a single flight."""
-    spec = load_campaign(path)
+def prepare(
+    path: str | Path | CampaignSpec, samples: int | None = None, controller: str | None = None
+) -> tuple[CampaignSpec, Flight, np.ndarray]:
+    """The checked campaign (a file, a name, or a spec already loaded), its base flight and
+    its sample table; ConfigError naming the key for anything wrong, before a single flight.
+    ``controller`` overrides the file's."""
+    spec = path if isinstance(path, CampaignSpec) else load_campaign(path)
+    if controller is not None:
+        spec = dataclasses.replace(spec, controller=controller)
     if samples is not None:
         if samples < 1:
             raise ConfigError(f"--samples: expected >= 1, got {samples}")
@@ -115,15 +124,16 @@ def versions() -> dict[str, str]:
 
 
 def run_campaign(
-    path: str | Path,
+    path: str | Path | CampaignSpec,
     out: Path,
     samples: int | None = None,
     workers: int | None = None,
     scheduler: str | None = None,
     quiet: bool = False,
+    controller: str | None = None,
 ) -> dict[str, Any]:
     t_start = time.perf_counter()
-    spec, base, table = prepare(path, samples)
+    spec, base, table = prepare(path, samples, controller)
     ident = _identity(spec, table)
     _claim(out, ident)
     n_workers = workers or os.cpu_count() or 1

@@ -5,7 +5,9 @@ Roots (each a frozen dataclass the rest of the bench already loads and validates
 * ``world.*``: the world file's tree (``world.wind.speed_m_s``, ``world.servos.tau_s``,
   ``world.mismatch.mass``, ``world.sensors.gps.noise_h_m``, ``world.seed``); aliases
   ``plant.mismatch.*``, ``servo.*`` / ``servos.*`` and ``sensors.*`` name the same;
-* ``gains.*``: the gain set (``gains.loop4.omega_rad_s``: ``loopN`` is loop N's table);
+* ``gains.*``: the TLC's gain set (``gains.loop4.omega_rad_s``: ``loopN`` is loop N's table);
+* ``pid.*``: the PID baseline's gains (``pid.rate.kp``, ``pid.velocity.ki[2]``), for a
+  campaign with ``controller = "pid"``;
 * ``estimator.*``: the estimator's tuning;
 * ``run.*``: the scenario's run table (``run.rate_hz``, ``run.plant_substeps``);
 * ``initial.*``: the initial state's fields, and three derived ones:
@@ -31,12 +33,13 @@ from typing import Any, TypeVar
 import numpy as np
 
 from autopilot.estimation.config import EstimatorConfig
+from autopilot.pid.gains import PidGains, default_pid_gains
 from autopilot.scenario import Scenario
-from heli_common.config import ConfigError, build
+from heli_common.config import ConfigError, as_table, build
 from heli_common.scenario_file import InitialState
 from heli_common.world import World
 
-ROOTS = ("world", "gains", "estimator", "run", "initial")
+ROOTS = ("world", "gains", "pid", "estimator", "run", "initial")
 ALIASES = {
     "plant.mismatch.": "world.mismatch.",
     "servo.": "world.servos.",
@@ -61,6 +64,8 @@ class Flight:
     scenario: Scenario
     world: World
     estimator: EstimatorConfig
+    controller: str = "tlc"  # or "pid"
+    pid_gains: PidGains | None = None  # None: configs/gains_pid.toml
 
 
 def canonical(key: str) -> str:
@@ -73,15 +78,6 @@ def canonical(key: str) -> str:
     if parts[0] == "gains" and len(parts) > 1 and parts[1] in LOOPS:
         parts[1] = LOOPS[parts[1]]
     return ".".join(parts)
-
-
-def _as_table(obj: Any) -> Any:
-    """A dataclass as the TOML-shaped table its loader takes (tuples as lists)."""
-    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
-        return {f.name: _as_table(getattr(obj, f.name)) for f in dataclasses.fields(obj) if f.init}
-    if isinstance(obj, tuple):
-        return [_as_table(v) for v in obj]
-    return obj
 
 
 def _set(table: dict[str, Any], path: list[str], value: float, key: str) -> None:
@@ -130,7 +126,7 @@ def _typed(old: Any, value: float, key: str) -> Any:
 
 def _rebuilt(obj: T, values: dict[str, float]) -> T:
     """``obj`` (a config dataclass) with the settings set, through its validated loader."""
-    t = _as_table(obj)
+    t = as_table(obj)
     t.pop("source", None)
     for key, v in values.items():
         _set(t, key.split(".")[1:], v, key)
@@ -145,7 +141,7 @@ def apply(base: Flight, values: dict[str, float]) -> Flight:
         if root not in ROOTS or "." not in key:
             raise ConfigError(f"{key}: unknown setting; it must start with one of {', '.join(ROOTS)}")
         by_root.setdefault(root, {})[key] = v
-    sc, world, est = base.scenario, base.world, base.estimator
+    sc, world, est, pid = base.scenario, base.world, base.estimator, base.pid_gains
     if "world" in by_root:
         w = _rebuilt(world, by_root["world"])
         w = dataclasses.replace(w, source=world.source, sensors=dataclasses.replace(w.sensors, seed=w.seed))
@@ -157,17 +153,19 @@ def apply(base: Flight, values: dict[str, float]) -> Flight:
         world = w
     if "gains" in by_root:
         sc = dataclasses.replace(sc, gains=_rebuilt(sc.gains, by_root["gains"]))
+    if "pid" in by_root:
+        pid = _rebuilt(pid or default_pid_gains(), by_root["pid"])
     if "estimator" in by_root:
         est = _rebuilt(est, by_root["estimator"])
     if "run" in by_root:
         sc = dataclasses.replace(sc, run=_rebuilt(sc.run, by_root["run"]))
     if "initial" in by_root:
         sc = dataclasses.replace(sc, initial=_initial(sc, by_root["initial"]))
-    return Flight(sc, world, est)
+    return Flight(sc, world, est, base.controller, pid)
 
 
 def _initial(sc: Scenario, values: dict[str, float]) -> InitialState:
-    t = _as_table(sc.initial)
+    t = as_table(sc.initial)
     start = np.asarray(sc.trajectory.sample(0.0)[0, 0:3])
     pos = np.asarray(sc.initial.pos_nwu_m, dtype=float)
     for key, v in values.items():

@@ -26,6 +26,7 @@ METRICS = (
     "max_tilt_rad",
     "saturated_ticks",
     "max_servo_rate_rad_s",
+    "pitch_travel_rad",
     "converge_s",
     "converged",
     "diverged",
@@ -35,6 +36,9 @@ TOP_KEYS = (
     "name",
     "scenario",
     "gains",
+    "controller",
+    "pid_gains",
+    "feedforward",
     "world",
     "estimator",
     "samples",
@@ -81,7 +85,10 @@ class Vary:
 class CampaignSpec:
     name: str
     scenario: str = "paper"
-    gains: str = ""
+    gains: str = ""  # the TLC's gains ("": the scenario's)
+    controller: str = "tlc"  # or "pid": the cascaded PID baseline
+    pid_gains: str = ""  # "": configs/gains_pid.toml
+    feedforward: str = ""  # the TLC's: "pseudo" or "exact" ("": the scenario's)
     world: str = ""
     estimator: str = ""
     samples: int = 100
@@ -182,11 +189,16 @@ def parse(table: dict[str, Any], source: str) -> CampaignSpec:
             raise _unknown(source, k, TOP_KEYS)
     name = table.get("name", Path(source).stem)
     strings = {}
-    for k in ("name", "scenario", "gains", "world", "estimator"):
-        v = table.get(k, name if k == "name" else ("paper" if k == "scenario" else ""))
+    defaults = {"name": name, "scenario": "paper", "controller": "tlc"}
+    for k in ("name", "scenario", "gains", "controller", "pid_gains", "feedforward", "world", "estimator"):
+        v = table.get(k, defaults.get(k, ""))
         if not isinstance(v, str):
             raise _fail(f"{source}: {k}", f"expected a string, got {v!r}")
         strings[k] = v
+    if strings["controller"] not in ("tlc", "pid"):
+        raise _fail(f"{source}: controller", f'expected "tlc" or "pid", got {strings["controller"]!r}')
+    if strings["feedforward"] not in ("", "pseudo", "exact"):
+        raise _fail(f"{source}: feedforward", f'expected "pseudo" or "exact", got {strings["feedforward"]!r}')
     samples = table.get("samples", 100)
     if isinstance(samples, bool) or not isinstance(samples, int) or not 1 <= samples <= 10_000_000:
         raise _fail(f"{source}: samples", f"expected an integer in [1, 1e7], got {samples!r}")
@@ -231,6 +243,9 @@ def parse(table: dict[str, Any], source: str) -> CampaignSpec:
         name=strings["name"],
         scenario=strings["scenario"],
         gains=strings["gains"],
+        controller=strings["controller"],
+        pid_gains=strings["pid_gains"],
+        feedforward=strings["feedforward"],
         world=strings["world"],
         estimator=strings["estimator"],
         samples=samples,

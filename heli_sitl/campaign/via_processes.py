@@ -12,39 +12,42 @@ from typing import Any
 
 import pyarrow.parquet as pq
 
-from heli_common.config import read_toml, to_toml
+from autopilot.pid.gains import default_pid_gains
+from heli_common.config import as_table, read_toml, to_toml
 from heli_sitl.campaign import engine
 from heli_sitl.campaign.flight import flight_seed
 from heli_sitl.campaign.run import prepare
-from heli_sitl.campaign.settings import Flight, _as_table, apply
+from heli_sitl.campaign.settings import Flight, apply
 from heli_sitl.demo import DemoError, DemoOptions, run_demo
 
 
 def write_files(f: Flight, base_scenario: Path, d: Path) -> dict[str, Path]:
     """The sample's scenario, gains, world and estimator as files the launchers read."""
     d.mkdir(parents=True, exist_ok=True)
-    gains = _as_table(f.scenario.gains)
+    gains = as_table(f.scenario.gains)
     (d / "gains.toml").write_text(to_toml(gains))
     _, table = read_toml(base_scenario)
-    run = _as_table(f.scenario.run)
+    run = as_table(f.scenario.run)
     run["gains"] = str((d / "gains.toml").resolve())
     run["airframe"] = str((base_scenario.parent / f.scenario.run.airframe).resolve())
     table["run"] = run
-    table["initial_state"] = _as_table(f.scenario.initial)
+    table["initial_state"] = as_table(f.scenario.initial)
     (d / "scenario.toml").write_text(to_toml(table))
-    world = _as_table(f.world)
+    world = as_table(f.world)
     world.pop("source", None)
     for k in ("name", "seed", "source"):
         world["sensors"].pop(k, None)
     (d / "world.toml").write_text(to_toml(world))
-    (d / "estimator.toml").write_text(to_toml(_as_table(f.estimator)))
-    return {k: d / f"{k}.toml" for k in ("scenario", "gains", "world", "estimator")}
+    (d / "estimator.toml").write_text(to_toml(as_table(f.estimator)))
+    (d / "pid_gains.toml").write_text(to_toml(as_table(f.pid_gains or default_pid_gains())))
+    return {k: d / f"{k}.toml" for k in ("scenario", "gains", "world", "estimator", "pid_gains")}
 
 
 def compare(
-    path: str | Path, out: Path, limit: int, samples: int | None = None, quiet: bool = False
-) -> list[dict[str, Any]]:
-    spec, base, table = prepare(path, samples)
+    path: str | Path, out: Path, limit: int, samples: int | None = None, quiet: bool = False,
+    controller: str | None = None,
+) -> list[dict[str, Any]]:  # fmt: skip
+    spec, base, table = prepare(path, samples, controller)
     rows = {r["sample_id"]: r for r in pq.read_table(out / engine.RESULTS).to_pylist()}
     results: list[dict[str, Any]] = []
     # a vehicle lost in-process is lost over processes too, and there its state leaves the
@@ -67,7 +70,8 @@ def compare(
                     via_ground=False,
                     world=str(files["world"]),
                     duration_s=spec.duration_s,
-                    extra_autopilot_args=("--estimator", str(files["estimator"])),
+                    extra_autopilot_args=("--estimator", str(files["estimator"]), "--controller",
+                                          f.controller, "--pid-gains", str(files["pid_gains"])),
                 )
             )
         except DemoError as exc:  # recorded, and on to the next sample

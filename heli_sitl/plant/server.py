@@ -17,12 +17,15 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+
 from heli_common import frames
 from heli_common.links import ServoCommand, ServoInput
 from heli_common.mavlink.fast import ParamSet, SimCodec
 from heli_common.mavlink.sim_protocol import (
     encode_state,
     period_us,
+    plausible_state,
     receive,
 )
 from heli_common.mavlink.udp import MavlinkUdp, mavlink2
@@ -59,6 +62,10 @@ class SimStats:
     resent_states: int = 0
     silent_events: int = 0
     autopilot_silent: bool = False
+    # the vehicle left the range a state may hold (heli_common.mavlink.sim_protocol): no
+    # autopilot would accept it, so the run ends here, saying so (a lockstep run would
+    # otherwise wait for an answer that never comes)
+    lost: str = ""
     extra: dict[str, Any] = field(default_factory=dict)
 
 
@@ -121,9 +128,16 @@ class PlantServer:
         return self.link.pack(air) + self.link.pack(pitches)
 
     def _end_reached(self) -> bool:
-        """Stepped past the end (the state at t = duration is published and answered)."""
+        """Stepped past the end (the state at t = duration is published and answered), or
+        the vehicle is lost."""
+        x = self.plant.x
+        # every field within 100 (and none NaN) is plausible: one cheap test per tick
+        if not self.stats.lost and not float(np.abs(x).max()) <= 100.0 and not plausible_state(x):
+            t = self.t_us / 1e6
+            self.stats.lost = f"vehicle lost at t = {t:.2f} s: its state left the range a state may hold"
+            log.error("%s (%s)", self.stats.lost, np.array2string(x, precision=3))
         d = self.cfg.duration_s
-        return d is not None and self.t_us > round(d * 1e6)
+        return bool(self.stats.lost) or (d is not None and self.t_us > round(d * 1e6))
 
     def _mark_silent(self, silent: bool) -> None:
         if silent and not self.stats.autopilot_silent:

@@ -1,0 +1,102 @@
+"""The controllers' one contract: ``update(t, state, reference) -> pitches``, no I/O, no clock.
+
+A controller is a compiled kernel over a flat state vector plus a frozen tuple of
+constants built from the airframe, its gains and the control rate. :class:`KernelController`
+owns the state, the diagnostics and the rebuilding of constants; a controller supplies the
+kernel (``kernel(constants, state, x, ref, hold_integrators, out, diag) -> status``), the
+size of its state and how its constants are made.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from abc import ABC, abstractmethod
+from collections.abc import Callable
+from typing import Any, ClassVar, Generic, TypeVar
+
+import numpy as np
+
+from autopilot.reference import N_REF
+from heli_common.airframe import Airframe, PitchLimits
+from heli_common.state import N_PITCH, N_STATE, FloatArray
+
+# diagnostics written each tick, the same for every controller
+D_PHI_C, D_THETA_C, D_PSI_C, D_TM, D_SAT_MASK, D_TILT_LIMITED, D_STATUS = range(7)
+N_DIAG = 7
+
+# status codes
+OK, BAD_INPUT, BAD_OUTPUT = 0, 1, 2
+
+G = TypeVar("G")
+Kernel = Callable[[Any, FloatArray, FloatArray, FloatArray, bool, FloatArray, FloatArray], int]
+
+
+class KernelController(ABC, Generic[G]):
+    """A controller with its state; one ``update`` per control tick. The caller owns time
+    and calls ``update`` once per control period (zero-order hold on the output)."""
+
+    #: the name the command lines and records use ("tlc", "pid")
+    kind: ClassVar[str]
+    n_state: ClassVar[int]
+
+    def __init__(self, airframe: Airframe, gains: G, rate_hz: float = 100.0) -> None:
+        self.airframe = airframe
+        self.gains = gains
+        self.rate_hz = float(rate_hz)
+        self.constants = self._make_constants()
+        self.state = np.zeros(self.n_state)
+        self.diag = np.zeros(N_DIAG)
+        self._out = np.zeros(N_PITCH)
+
+    @abstractmethod
+    def _make_constants(self) -> Any:
+        """The kernel's constants from ``airframe``, ``gains`` and ``rate_hz``."""
+
+    @staticmethod
+    @abstractmethod
+    def kernel() -> Kernel:
+        """The compiled control law."""
+
+    @property
+    def dt_s(self) -> float:
+        return float(self.constants.dt_s)
+
+    def reset(self) -> None:
+        """Forget integrals and filter states; the next update re-initialises them."""
+        self.state[:] = 0.0
+
+    def set_gains(self, gains: G) -> None:
+        """New gains take effect from the next update; integrals and filters are kept."""
+        self.gains = gains
+        self.constants = self._make_constants()
+
+    def set_limits(self, limits: PitchLimits) -> None:
+        """New pitch limits from the next update."""
+        self.airframe = dataclasses.replace(self.airframe, limits=limits)
+        self.constants = self._make_constants()
+
+    def update(
+        self, t: float, x: FloatArray, ref: FloatArray, *, hold_integrators: bool = False
+    ) -> FloatArray:
+        """Pitches [rad] (theta_m, theta_t, eps, eta) for measured state ``x`` (NWU/FLU) and
+        reference ``ref`` (pos, vel, acc in NWU; vel/acc may be NaN where unknown).
+
+        ``t`` is the tick time; the laws are time-invariant given ``ref`` and do not read it.
+        Returns a new array; a non-finite input yields the last valid command.
+        """
+        if x.shape != (N_STATE,) or ref.shape != (N_REF,):
+            raise ValueError(f"state must be ({N_STATE},) and reference ({N_REF},)")
+        self.kernel()(self.constants, self.state, x, ref, hold_integrators, self._out, self.diag)
+        return self._out.copy()
+
+    def warm_up(self, x: FloatArray) -> None:
+        """Run the kernel once on throwaway copies (a hold at ``x``): numba loads compiled
+        code on a function's first call, tens of milliseconds that a real-time loop's first
+        tick must not pay. Nothing of this controller changes."""
+        ref = np.zeros(N_REF)
+        ref[0:3] = x[0:3]
+        self.kernel()(self.constants, self.state.copy(), x, ref, False, self._out.copy(), self.diag.copy())
+
+    @property
+    def status(self) -> int:
+        return int(self.diag[D_STATUS])

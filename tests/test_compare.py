@@ -1,0 +1,157 @@
+"""Tuning and comparing controllers (heli-sitl tune, heli-sitl compare): the same procedure
+for both, files that load back, a report whose numbers are the flights' own."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from autopilot.pid.gains import PidGains
+from autopilot.scenario import Scenario
+from heli_common.config import ConfigError
+from heli_sitl.closed_loop import SimOptions, simulate
+from heli_sitl.compare import Contender, largest_converged, load_compare, run_compare
+from heli_sitl.tune import Knob, Tuner, pid_knobs, tlc_knobs, tune, with_knobs, write_gains
+
+
+@given(st.floats(0.0, 1.0), st.booleans())
+def test_a_knob_maps_its_unit_interval_onto_its_range_and_back(u: float, log: bool) -> None:
+    k = Knob("rate", "kp", (0, 1), 0.5, 50.0, log=log)
+    v = k.from_unit(u)
+    assert 0.5 <= v <= 50.0 + 1e-9
+    assert k.to_unit(v) == pytest.approx(u, abs=1e-9)
+
+
+def test_knobs_cover_both_controllers_alike_and_set_what_they_name() -> None:
+    sc = Scenario.load("paper")
+    pid = PidGains.load("gains_pid_table2.toml")
+    kp, kt = pid_knobs(pid), tlc_knobs(sc.gains)
+    assert len(kp) == len(kt) == 13  # the same number of degrees of freedom
+    g = with_knobs(pid, kp[:1], [1.25])
+    assert g.position.kp == (1.25, 1.25, pid.position.kp[2])  # x and y share a knob, z its own
+    t = with_knobs(sc.gains, [k for k in kt if k.name == "differentiator.omega_rad_s"], [7.5])
+    assert (
+        t.differentiator.omega_rad_s == 7.5 and t.loop4_attitude_dynamics == sc.gains.loop4_attitude_dynamics
+    )
+    with pytest.raises(ConfigError):  # outside a gain's range in its file's spec
+        with_knobs(pid, kp[:1], [500.0])
+
+
+def test_the_cost_is_the_worst_flight_and_the_flights_are_the_simulator_s() -> None:
+    sc = Scenario.load("paper")
+    pid = PidGains.load("gains_pid_table2.toml")
+    knobs = pid_knobs(pid)
+    tuner = Tuner(sc, "pid", "pseudo", pid, knobs)
+    start = [k.from_unit(k.to_unit(getattr(getattr(pid, k.section), k.field)[k.index[0]])) for k in knobs]
+    flights = tuner.flights(start)
+    assert [f.world for f in flights] == ["ideal", "servos-default", "everything"]
+    rec = simulate(sc, SimOptions(controller="pid", pid_gains=pid))
+    assert flights[0].rms_10_m == pytest.approx(rec.summary()["rms_pos_err_m"]["10-120"], rel=1e-9)
+    cost = tuner(np.array([k.to_unit(v) for k, v in zip(knobs, start, strict=True)]))
+    assert cost == max(f.cost_m for f in flights)
+
+
+@pytest.mark.slow
+def test_a_short_tuning_never_ends_worse_and_writes_gains_that_load_back(tmp_path: Path) -> None:
+    sc = Scenario.load("paper")
+    r = tune(sc, "pid", budget=30, start=PidGains.load("gains_pid_table2.toml"))
+    before, after = r.cost(r.start_flights), r.cost(r.best_flights)
+    print(f"PID tuning, 30 evaluations: {before:.4f} -> {after:.4f} m")
+    assert r.evaluations >= 30 and after <= before + 1e-3  # rounding to 4 digits may cost a hair
+    out = tmp_path / "pid.toml"
+    write_gains(r, out, "test")
+    loaded = PidGains.load(out)
+    assert loaded == dataclasses.replace(r.gains, name=loaded.name)
+    assert "Nelder-Mead" in out.read_text() and "Command: test" in out.read_text()
+
+
+COMPARE = """
+name = "two"
+worlds = ["calm"]
+campaigns = ["{campaign}"]
+
+[[contender]]
+label = "TLC paper"
+controller = "tlc"
+gains = "gains_paper.toml"
+
+[[contender]]
+label = "PID"
+controller = "pid"
+pid_gains = "gains_pid_table2.toml"
+"""
+
+GRID = """
+name = "grid"
+sampler = "grid"
+duration_s = 15.0
+[[vary]]
+key = "servo.delay_s"
+dist = "grid"
+values = [0.0, 0.2]
+[[vary]]
+key = "servo.tau_s"
+dist = "grid"
+values = [0.0, 0.05]
+"""
+
+
+def test_bad_comparison_files_are_refused(tmp_path: Path) -> None:
+    f = tmp_path / "c.toml"
+    for text, expected in (
+        ('name = "x"\n', "at least one [[contender]]"),
+        ('[[contender]]\nlabel = "a"\ncontroller = "lqr"\n', "controller"),
+        ('[[contender]]\nlabel = "a"\ngains = "nowhere.toml"\n', "nowhere.toml"),
+        ('worlds = ["nowhere"]\n[[contender]]\nlabel = "a"\n', "nowhere"),
+        ('[[contender]]\nlabel = "a"\n[[contender]]\nlabel = "A"\n', "labels must differ"),
+        ('contenders = 1\n[[contender]]\nlabel = "a"\n', "unknown key 'contenders'"),
+    ):
+        f.write_text(text)
+        with pytest.raises(ConfigError) as err:
+            load_compare(f)
+        assert expected in str(err.value), (text, str(err.value))
+    assert [c.label for c in load_compare().contenders][-1] == "PID, tuned"  # the shipped file loads
+    assert Contender("TLC, paper Table 2").slug == "tlc-paper-table-2"
+
+
+@pytest.mark.slow
+def test_compare_reports_the_flights_own_numbers(tmp_path: Path) -> None:
+    grid = tmp_path / "grid.toml"
+    grid.write_text(GRID)
+    f = tmp_path / "two.toml"
+    f.write_text(COMPARE.format(campaign=grid))
+    out = tmp_path / "report"
+    res = run_compare(f, out, tmp_path / "work", workers=1, quiet=True, command="heli-sitl compare test")
+    nominal = res["nominal"]
+    table2 = PidGains.load("gains_pid_table2.toml")
+    direct = simulate(Scenario.load("paper"), SimOptions(controller="pid", pid_gains=table2))
+    assert nominal["PID"]["rms_10_m"] == pytest.approx(direct.summary()["rms_pos_err_m"]["10-120"], rel=1e-12)
+    assert nominal["TLC paper"]["rms_45_m"] == pytest.approx(0.0402, abs=1e-4)  # the paper's figure
+    assert set(res["worlds"]["calm"]) == {"TLC paper", "PID"}
+    camp = res["campaigns"]["grid"]
+    assert camp["PID"]["flights"] == camp["TLC paper"]["flights"] == 4
+    text = (out / "report.md").read_text()
+    assert "heli-sitl compare test" in text and "| PID |" in text and "| TLC paper |" in text
+    saved = json.loads((out / "comparison.json").read_text())
+    assert saved["nominal"]["PID"]["rms_10_m"] == nominal["PID"]["rms_10_m"]
+    for png in ("nominal_error.png", "nominal_path.png", "worlds.png", "campaign_grid.png"):
+        assert (out / png).stat().st_size > 10_000, png
+    # a re-run resumes the campaigns: nothing is flown twice
+    res2 = run_compare(f, out, tmp_path / "work", workers=1, quiet=True)
+    assert res2["campaigns"] == res["campaigns"]
+
+
+def test_largest_converged_reads_a_grid() -> None:
+    import pyarrow as pa
+
+    t = pa.table({"a": [0.0, 0.0, 1.0, 1.0, 2.0, 2.0], "b": [0.0, 1.0, 0.0, 1.0, 0.0, 1.0],
+                  "converged": [True, True, True, False, False, False], "failed": [False] * 6})  # fmt: skip
+    assert largest_converged(t, "a", {"b": 0.0}) == 1.0
+    assert largest_converged(t, "a") == 0.0
+    assert largest_converged(t, "b", {"a": 2.0}) != largest_converged(t, "b", {"a": 2.0})  # NaN: none
