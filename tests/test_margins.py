@@ -314,3 +314,34 @@ if __name__ == "__main__":
     print(margins_markdown())
     print()
     print(flights_markdown())
+
+
+@pytest.mark.parametrize("servo", ["ideal", "default", "sloppy"])
+def test_the_pid_rate_loop_at_table2_is_the_tlc_s_loop4(servo: str, paper_gains: Gains) -> None:
+    """The PID's Table 2 start puts a PI with the TLC's loop-4 omega and zeta on the same
+    1/s behind the same servo: two independent derivations must give the same margins."""
+    from autopilot.analysis.margins import SERVO_MODELS
+    from autopilot.analysis.pid_margins import pid_loop_margins
+    from autopilot.pid.gains import PidGains
+
+    pid = pid_loop_margins(PidGains.load("gains_pid_table2.toml"), SERVO_MODELS[servo])
+    tlc = loop_margins(paper_gains, SERVO_MODELS[servo], feedforward=False)
+    for ch in ("roll", "pitch", "yaw"):
+        p, t = pid.get(4, ch), tlc.get(4, ch)
+        # kp = 17, ki = 144 against 2 zeta omega = 16.97, omega^2 = 144: 0.2 % apart
+        assert p.crossover_rad_s == pytest.approx(t.crossover_rad_s, rel=3e-3)
+        assert p.phase_margin_deg == pytest.approx(t.phase_margin_deg, abs=0.2)
+        assert p.stable == t.stable
+
+
+def test_the_pid_rate_derivative_adds_phase() -> None:
+    from autopilot.analysis.margins import DEFAULT_SERVOS
+    from autopilot.analysis.pid_margins import pid_loop_margins
+    from autopilot.pid.gains import PidGains
+
+    g = PidGains.load("gains_pid_table2.toml")
+    with_d = dataclasses.replace(g, rate=dataclasses.replace(g.rate, kd=(0.3, 0.3, 0.3)))
+    a = pid_loop_margins(g, DEFAULT_SERVOS).get(4, "roll")
+    b = pid_loop_margins(with_d, DEFAULT_SERVOS).get(4, "roll")
+    print(f"rate loop, 10 + 20 ms servos: PM {a.phase_margin_deg:.1f} deg, kd 0.3: {b.phase_margin_deg:.1f}")
+    assert b.phase_margin_deg > a.phase_margin_deg + 5.0 and b.crossover_rad_s < a.crossover_rad_s
