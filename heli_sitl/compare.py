@@ -229,7 +229,7 @@ def campaign_summary(t: pa.Table, spec: CampaignSpec) -> dict[str, Any]:
         "converged": int((_flag(t, "converged") & ~failed).sum()),
         "diverged": int((_flag(t, "diverged") & ~failed).sum()),
     }
-    for m in ("rms_10_m", "rms_45_m", "max_err_10_m", "pitch_travel_rad"):
+    for m in ("rms_10_m", "rms_45_m", "max_err_10_m", "pitch_travel_rad", "converge_s"):
         v = _col(t, m)[~failed]
         v = v[np.isfinite(v)]
         out[m] = (
@@ -317,6 +317,7 @@ def campaign_table(res: dict[str, dict[str, Any]]) -> str:
         "RMS [45,end] p50 / p95 m",
         "max from 10 s p95 m",
         "pitch travel p50 rad",
+        "converged from p50 / max s",
     ]
     # a grid's boundary: with two keys, how far each goes with the other at its lowest; with
     # more, how far the first goes with every level of the rest converged
@@ -339,6 +340,7 @@ def campaign_table(res: dict[str, dict[str, Any]]) -> str:
             f"{_f(s['rms_45_m']['p50'], '.4f')} / {_f(s['rms_45_m']['p95'], '.4f')}",
             _f(s["max_err_10_m"]["p95"]),
             _f(s["pitch_travel_rad"]["p50"], ".2f"),
+            f"{_f(s['converge_s']['p50'], '.1f')} / {_f(s['converge_s']['max'], '.1f')}",
         ]
         r += [_f(s[pick][k], "g") for k in extra]
         rows.append(r)

@@ -179,7 +179,7 @@ def test_the_controller_is_a_campaign_key_and_its_gains_can_vary(tmp_path: Path)
 def test_shipped_campaigns_are_valid_and_sized_as_documented() -> None:
     sizes = {
         "robustness": 1000,
-        "region_of_attraction": 7 * 5 * 3,
+        "region_of_attraction": 10 * 5 * 3,
         "margins": 13 * 11,
         "sensitivity": 128 * 14,
     }
