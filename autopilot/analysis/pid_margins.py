@@ -38,6 +38,7 @@ from autopilot.analysis.margins import (
     ServoModel,
     _actuator_poly,
     _hurwitz,
+    _inner_chain,
     _margins,
     _Ratio,
 )
@@ -72,19 +73,6 @@ def _stages(gains: PidGains, s: Any, a: _Ratio) -> dict[tuple[int, int], tuple[_
     return out
 
 
-def _inner(loop: int, ch: int) -> list[tuple[int, int]]:
-    chain = [(loop, ch)]
-    while loop < 4:
-        if loop == 2:
-            through = _LOOP2_THROUGH[ch]
-            if through is None:
-                break
-            ch = through
-        loop += 1
-        chain.append((loop, ch))
-    return chain
-
-
 def pid_loop_margins(gains: PidGains, servo: ServoModel, *, pade_order: int = PADE_ORDER) -> MarginReport:
     """Margins of the PID's loops 1-4, every channel, flying through ``servo``: the exact
     delay on :data:`OMEGA_GRID` (python-control's FRD margins), stability from the poles of
@@ -95,7 +83,7 @@ def pid_loop_margins(gains: PidGains, servo: ServoModel, *, pade_order: int = PA
     loops: list[LoopMargins] = []
     for loop in (1, 2, 3, 4):
         for ch, name in enumerate(LOOP_CHANNELS[loop]):
-            stable = all(_hurwitz(np.poly1d(poly[key][2])) for key in _inner(loop, ch))
+            stable = all(_hurwitz(np.poly1d(poly[key][2])) for key in _inner_chain(loop, ch))
             lo = freq[loop, ch][0]
             sys = ct.frd(np.asarray(lo.num / lo.den, dtype=complex), OMEGA_GRID)
             loops.append(_margins(sys, loop, name, stable))
