@@ -10,6 +10,7 @@ size of its state and how its constants are made.
 from __future__ import annotations
 
 import dataclasses
+import math
 from abc import ABC, abstractmethod
 from collections.abc import Callable
 from typing import Any, ClassVar, Generic, TypeVar
@@ -18,6 +19,7 @@ import numpy as np
 
 from autopilot.reference import N_REF
 from heli_common.airframe import Airframe, PitchLimits
+from heli_common.jit import njit
 from heli_common.state import N_PITCH, N_STATE, FloatArray
 
 # diagnostics written each tick, the same for every controller
@@ -28,6 +30,44 @@ N_DIAG = 7
 OK, BAD_INPUT, BAD_OUTPUT = 0, 1, 2
 
 G = TypeVar("G")
+
+
+# --- what every kernel does around its law: refuse a tick, or commit one
+
+
+@njit
+def all_finite(v: FloatArray) -> bool:
+    for i in range(v.shape[0]):  # noqa: SIM110 (numba compiles no generator inside all())
+        if not math.isfinite(v[i]):
+            return False
+    return True
+
+
+@njit
+def refuse(st: FloatArray, last_u: int, out: FloatArray, diag: FloatArray, status: int) -> int:
+    """A tick without a valid command: the last valid one again (zero pitch before the
+    first), the state untouched, ``status`` in the diagnostics."""
+    out[:] = st[last_u : last_u + N_PITCH]
+    diag[D_STATUS] = status
+    return status
+
+
+@njit
+def commit(
+    st: FloatArray, s: FloatArray, last_u: int, u: FloatArray, out: FloatArray, diag: FloatArray,
+    phi_c: float, theta_c: float, psi_c: float, tm: float, sat_mask: int, tilt_limited: bool,
+) -> int:  # fmt: skip
+    """A valid tick: the new state ``s`` (with ``u`` as its last valid command) replaces
+    ``st``, ``u`` goes out, the diagnostics are written."""
+    s[last_u : last_u + N_PITCH] = u
+    st[:] = s
+    out[:] = u
+    diag[D_PHI_C], diag[D_THETA_C], diag[D_PSI_C] = phi_c, theta_c, psi_c
+    diag[D_TM] = tm
+    diag[D_SAT_MASK] = sat_mask
+    diag[D_TILT_LIMITED] = tilt_limited
+    diag[D_STATUS] = OK
+    return OK
 Kernel = Callable[[Any, FloatArray, FloatArray, FloatArray, bool, FloatArray, FloatArray], int]
 
 

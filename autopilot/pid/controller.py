@@ -19,16 +19,11 @@ import numpy as np
 from autopilot.control import (
     BAD_INPUT,
     BAD_OUTPUT,
-    D_PHI_C,
-    D_PSI_C,
-    D_SAT_MASK,
-    D_STATUS,
-    D_THETA_C,
-    D_TILT_LIMITED,
-    D_TM,
-    OK,
     Kernel,
     KernelController,
+    all_finite,
+    commit,
+    refuse,
 )
 from autopilot.pid.gains import PidGains
 from autopilot.reference import ACC_0 as REF_ACC
@@ -94,14 +89,6 @@ def make_pid_constants(airframe: Airframe, gains: PidGains, rate_hz: float) -> P
 
 
 @njit
-def _finite(v: FloatArray) -> bool:
-    for i in range(v.shape[0]):  # noqa: SIM110 (numba compiles no generator inside all())
-        if not math.isfinite(v[i]):
-            return False
-    return True
-
-
-@njit
 def _or0(v: float) -> float:
     return v if math.isfinite(v) else 0.0
 
@@ -133,10 +120,8 @@ def pid_kernel(
     the command is finite."""
     c = k.plant
     mg = c.mass_kg * c.gravity_m_s2
-    if not (_finite(x) and _finite(ref[0:3])):
-        out[:] = st[P_LAST_U : P_LAST_U + 4]
-        diag[D_STATUS] = BAD_INPUT
-        return BAD_INPUT
+    if not (all_finite(x) and all_finite(ref[0:3])):
+        return refuse(st, P_LAST_U, out, diag, BAD_INPUT)
     s = st.copy()
     dt = k.dt_s
     pos, vel, gam, om = x[POS], x[VEL], x[EULER], x[OMEGA]
@@ -179,10 +164,8 @@ def pid_kernel(
 
     # --- allocation with saturation (the TLC's)
     u, tm, sat_mask = allocate(qc, tm, c, k.limits)
-    if not _finite(u) or not _finite(s):
-        out[:] = st[P_LAST_U : P_LAST_U + 4]
-        diag[D_STATUS] = BAD_OUTPUT
-        return BAD_OUTPUT
+    if not all_finite(u) or not all_finite(s):
+        return refuse(st, P_LAST_U, out, diag, BAD_OUTPUT)
 
     # --- integrators: frozen while an output saturates (velocity also while tilt-limited), clamped
     saturated = sat_mask != 0
@@ -199,15 +182,7 @@ def pid_kernel(
                 s[P_I_RATE + i] = min(max(v, -lim_r), lim_r)
     s[P_PSI_C] += dt * dpsi_c
     s[P_STARTED] = 1.0
-    s[P_LAST_U : P_LAST_U + 4] = u
-    st[:] = s
-    out[:] = u
-    diag[D_PHI_C], diag[D_THETA_C], diag[D_PSI_C] = phi_c, theta_c, s[P_PSI_C]
-    diag[D_TM] = tm
-    diag[D_SAT_MASK] = sat_mask
-    diag[D_TILT_LIMITED] = tilt_limited
-    diag[D_STATUS] = OK
-    return OK
+    return commit(st, s, P_LAST_U, u, out, diag, phi_c, theta_c, s[P_PSI_C], tm, sat_mask, tilt_limited)
 
 
 class PIDController(KernelController[PidGains]):

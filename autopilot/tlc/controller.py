@@ -27,6 +27,9 @@ from autopilot.control import (
     OK,
     Kernel,
     KernelController,
+    all_finite,
+    commit,
+    refuse,
 )
 from autopilot.reference import ACC_0 as REF_ACC
 from autopilot.reference import POS_0 as REF_POS
@@ -99,14 +102,6 @@ def make_constants(airframe: Airframe, gains: Gains, rate_hz: float, ff: Feedfor
 
 
 @njit
-def _all_finite(v: FloatArray) -> bool:
-    for i in range(v.shape[0]):  # noqa: SIM110 (numba compiles no generator inside all())
-        if not math.isfinite(v[i]):
-            return False
-    return True
-
-
-@njit
 def tlc_kernel(
     k: TLCConstants,
     st: FloatArray,
@@ -124,10 +119,8 @@ def tlc_kernel(
     """
     c = k.plant
     mg = c.mass_kg * c.gravity_m_s2
-    if not (_all_finite(x) and _all_finite(ref[0:3])):
-        out[:] = st[S_LAST_U : S_LAST_U + 4]
-        diag[D_STATUS] = BAD_INPUT
-        return BAD_INPUT
+    if not (all_finite(x) and all_finite(ref[0:3])):
+        return refuse(st, S_LAST_U, out, diag, BAD_INPUT)
     s = st.copy()
     dt = k.dt_s
     pos, vel, gam, om = x[POS], x[VEL], x[EULER], x[OMEGA]
@@ -196,10 +189,8 @@ def tlc_kernel(
 
     # --- allocation with saturation
     u, tm, sat_mask = allocate(qc, tm, c, k.limits)
-    if not _all_finite(u) or not _all_finite(s):
-        out[:] = st[S_LAST_U : S_LAST_U + 4]
-        diag[D_STATUS] = BAD_OUTPUT
-        return BAD_OUTPUT
+    if not all_finite(u) or not all_finite(s):
+        return refuse(st, S_LAST_U, out, diag, BAD_OUTPUT)
 
     # --- integrators: conditional integration (frozen while any output saturates)
     saturated = sat_mask != 0
@@ -212,15 +203,7 @@ def tlc_kernel(
             s[S_I4 : S_I4 + 3] += dt * we
     s[S_PSI_C] += dt * dpsi_c
     s[S_STARTED] = 1.0
-    s[S_LAST_U : S_LAST_U + 4] = u
-    st[:] = s
-    out[:] = u
-    diag[D_PHI_C], diag[D_THETA_C], diag[D_PSI_C] = gc[0], gc[1], gc[2]
-    diag[D_TM] = tm
-    diag[D_SAT_MASK] = sat_mask
-    diag[D_TILT_LIMITED] = tilt_limited
-    diag[D_STATUS] = OK
-    return OK
+    return commit(st, s, S_LAST_U, u, out, diag, gc[0], gc[1], gc[2], tm, sat_mask, tilt_limited)
 
 
 class TLController(KernelController[Gains]):
