@@ -160,20 +160,33 @@ def test_the_controller_is_a_campaign_key_and_its_gains_can_vary(tmp_path: Path)
     f = tmp_path / "c.toml"
     f.write_text('samples = 2\nseed = 4\nduration_s = 20.0\n[[vary]]\nkey = "pid.rate.kp"\n'
                  "low = 4.0\nhigh = 8.0\n")  # fmt: skip
-    spec_t, base_t, table_t = prepare(f)
+    with pytest.raises(ConfigError, match=r"pid.rate.kp: varies the PID.s gains, but the campaign flies the TLC"):  # noqa: E501
+        prepare(f)  # the TLC would ignore pid.*: flights that differ in name only
     spec_p, base_p, table_p = prepare(f, controller="pid")
-    assert spec_t.controller == "tlc" and spec_p.controller == "pid" and base_p.controller == "pid"
-    np.testing.assert_array_equal(table_t, table_p)
+    assert spec_p.controller == "pid" and base_p.controller == "pid"
     kp = float(table_p[0, 0])
+    assert 4.0 <= kp <= 8.0
     row_p = fly(spec_p, base_p, 0, spec_p.keys, [kp])
-    row_t = fly(spec_t, base_t, 0, spec_t.keys, [kp])
-    assert not row_p["failed"] and not row_t["failed"]
+    assert not row_p["failed"]
     pid = base_p.pid_gains or default_pid_gains()
     gains = dataclasses.replace(pid, rate=dataclasses.replace(pid.rate, kp=(kp, kp, kp)))
     rec = simulate(Scenario.load("paper"), SimOptions(duration_s=20.0, controller="pid", pid_gains=gains))
     direct = metrics(rec, spec_p)
     assert row_p["rms_0_m"] == direct["rms_0_m"] and row_p["pitch_travel_rad"] == direct["pitch_travel_rad"]
-    assert row_t["rms_0_m"] != row_p["rms_0_m"]  # the TLC ignores pid.*: another flight
+    # the same samples for either controller: a TLC campaign of the same draws
+    g = tmp_path / "t.toml"
+    head = "samples = 2\nseed = 4\nduration_s = 20.0\n[[vary]]\n"
+    g.write_text(head + 'key = "initial.yaw_error_rad"\nlow = 0.0\nhigh = 0.5\n')
+    spec_t, base_t, table_t = prepare(g)
+    spec_q, base_q, table_q = prepare(g, controller="pid")
+    np.testing.assert_array_equal(table_t, table_q)
+    row_t = fly(spec_t, base_t, 0, spec_t.keys, table_t[0].tolist())
+    row_q = fly(spec_q, base_q, 0, spec_q.keys, table_q[0].tolist())
+    assert not row_t["failed"] and row_t["rms_0_m"] != row_q["rms_0_m"]  # another controller, another flight
+    h = tmp_path / "h.toml"
+    h.write_text(head + 'key = "gains.loop4.omega_rad_s"\nlow = 8.0\nhigh = 12.0\n')
+    with pytest.raises(ConfigError, match=r"gains.loop4.omega_rad_s: varies the TLC's gains, but .* the PID"):
+        prepare(h, controller="pid")
 
 
 def test_shipped_campaigns_are_valid_and_sized_as_documented() -> None:

@@ -67,6 +67,14 @@ def prepare(
     canon = tuple(canonical(v.key) for v in spec.vary)
     if len(set(canon)) != len(canon):
         raise ConfigError(f"{spec.source}: vary: two keys name the same setting ({', '.join(spec.keys)})")
+    # the other controller's gains would change nothing: flights that differ in name only
+    other, owner = {"tlc": ("pid.", "pid"), "pid": ("gains.", "tlc")}[spec.controller]
+    for v in spec.vary:
+        if canonical(v.key).startswith(other):
+            raise ConfigError(
+                f"{v.key}: varies the {owner.upper()}'s gains, but the campaign flies the "
+                f'{spec.controller.upper()} (set controller = "{owner}", or --controller {owner})'
+            )
     for v in spec.vary:
         check(base, v.key, _probes(v))
     spec = dataclasses.replace(
