@@ -89,6 +89,7 @@ def _simulate(args: argparse.Namespace) -> int:
 def _tune(args: argparse.Namespace) -> int:
     from autopilot.pid.gains import PidGains
     from autopilot.scenario import Scenario
+    from heli_sitl.compare import command_line
     from heli_sitl.tune import tune, write_gains
 
     scenario = Scenario.load(args.scenario, gains=args.gains if args.controller == "tlc" else None)
@@ -109,8 +110,7 @@ def _tune(args: argparse.Namespace) -> int:
     for f in r.best_flights:
         print(f"  {f.describe()}")
     out = Path(args.out)
-    command = "heli-sitl tune " + " ".join(sys.argv[2:]) if sys.argv[1:2] == ["tune"] else "heli_sitl.tune"
-    write_gains(r, out, command)
+    write_gains(r, out, command_line())
     print(f"wrote {out}")
     return 0
 
