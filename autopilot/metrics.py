@@ -21,6 +21,10 @@ WORLD_CSV_HEADER = ("t", "air_n", "air_w", "air_u", "theta_m_pos", "theta_t_pos"
 # est.csv, flying from sensors: the estimate the controller flew on, beside run.csv's truth,
 # then the estimator's log (autopilot.estimation.kf.EST_LOG_COLUMNS)
 EST_CSV_STATE = ("t", "x_est", "y_est", "z_est", "phi_est", "theta_est", "psi_est")
+# the rotor plant's own states after run.csv's columns: flapping (forward, right tilt of the
+# tip-path plane [rad]), rotor speed [rad/s] and the governor's throttle [0, 1]
+ROTOR_CSV = ("a1", "b1", "omega_rotor", "throttle")
+ROTOR_RECORD = ("a1_rad", "b1_rad", "omega_rad_s", "governor_int_rad", "throttle")
 
 
 @dataclass(frozen=True)
@@ -48,6 +52,8 @@ class FlightRecord:
     # log (N, len(EST_LOG_COLUMNS)); ``x`` stays the truth
     x_hat: FloatArray | None = None
     est_log: FloatArray | None = None
+    # the rotor plant: per tick its states and throttle (N, len(ROTOR_RECORD)); row 0 the start
+    rotor: FloatArray | None = None
 
     @classmethod
     def from_ticks(
@@ -122,6 +128,8 @@ class FlightRecord:
         }
         if self.x_hat is not None:
             out["estimate"] = self._estimate_summary(err, end)
+        if self.rotor is not None:
+            out["rotor"] = self._rotor_summary()
         if self.landing is not None and self.landing.any():
             lt = self.t_s[self.landing]
             land_err = float(np.max(err[self.landing]))
@@ -157,6 +165,22 @@ class FlightRecord:
             out["mean_nis"] = float(np.mean(nis)) if nis.size else None
         return out
 
+    def _rotor_summary(self) -> dict[str, Any]:
+        """The rotor plant: rotor speed range and largest droop, flapping and throttle extremes."""
+        assert self.rotor is not None
+        r = self.rotor[np.all(np.isfinite(self.rotor), axis=1)]
+        if r.size == 0:
+            return {}
+        om = r[:, ROTOR_RECORD.index("omega_rad_s")]
+        thr = r[:, ROTOR_RECORD.index("throttle")]
+        return {
+            "omega_rad_s": [float(om.min()), float(om.max())],
+            "max_droop_rad_s": float(om[0] - om.min()),
+            "max_abs_a1_rad": float(np.max(np.abs(r[:, ROTOR_RECORD.index("a1_rad")]))),
+            "max_abs_b1_rad": float(np.max(np.abs(r[:, ROTOR_RECORD.index("b1_rad")]))),
+            "throttle": [float(thr.min()), float(thr.max())],
+        }
+
     def write_est_csv(self, path: Path) -> bool:
         """est.csv: per tick, the estimate the controller flew on (position NWU, Euler) and
         the estimator's log; False (nothing written) when it flew on the truth."""
@@ -180,18 +204,25 @@ class FlightRecord:
         e = self.x[:, EULER].copy()
         e[:, 2] = psi
         att = self.att_cmd if self.att_cmd is not None else np.full((self.t_s.size, 2), np.nan)
-        return np.column_stack(
-            [self.t_s, self.x[:, POS], e, self.ref[:, 0:3], self.psi_cmd, self.pitches, att]
-        )
+        cols = [self.t_s, self.x[:, POS], e, self.ref[:, 0:3], self.psi_cmd, self.pitches, att]
+        if self.rotor is not None:
+            cols.append(self.rotor[:, [ROTOR_RECORD.index(k) for k in ("a1_rad", "b1_rad", "omega_rad_s",
+                                                                      "throttle")]])  # fmt: skip
+        return np.column_stack(cols)
+
+    @property
+    def header(self) -> tuple[str, ...]:
+        """run.csv's columns: the paper's, then the rotor plant's where it flew."""
+        return CSV_HEADER + (ROTOR_CSV if self.rotor is not None else ())
 
     def columns(self) -> dict[str, FloatArray]:
         """The CSV columns by name, for plotting."""
         rows = self.rows()
-        return {name: rows[:, i] for i, name in enumerate(CSV_HEADER)}
+        return {name: rows[:, i] for i, name in enumerate(self.header)}
 
     def write_csv(self, path: Path) -> None:
         with path.open("w", newline="") as fh:
-            csv.writer(fh).writerow(CSV_HEADER)
+            csv.writer(fh).writerow(self.header)
             write_rows(fh, self.rows())
 
     def write_world_csv(self, path: Path) -> bool:

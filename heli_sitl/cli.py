@@ -14,6 +14,7 @@ from pathlib import Path
 from heli_common import cli_args as arg
 from heli_common.defaults import HOME, Exit, ports
 from heli_common.geo import parse_geo_point
+from heli_common.plant_model import PLANT_HELP
 from heli_common.process import UsageError, run_main
 from heli_common.servo_link import add_servo_args
 from heli_common.world import World
@@ -34,6 +35,7 @@ def _simulate(args: argparse.Namespace) -> int:
     from autopilot.pid.gains import PidGains
     from autopilot.scenario import Scenario
     from ground.plots import plot_estimate, plot_figures, plot_world
+    from heli_common.plant_model import PlantModel
     from heli_sitl.closed_loop import SimOptions, simulate
 
     scenario = Scenario.load(args.scenario, gains=args.gains)
@@ -48,6 +50,7 @@ def _simulate(args: argparse.Namespace) -> int:
         estimator=EstimatorConfig.load(args.estimator) if args.estimator else EstimatorConfig(),
         controller=args.controller,
         pid_gains=PidGains.load(args.pid_gains) if args.pid_gains else None,
+        plant=PlantModel.load(args.plant),
     )
     with tqdm(
         total=100, desc=f"simulate {scenario.run.name}", unit="%", disable=args.quiet,
@@ -291,6 +294,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", required=True, help="output directory")
     s.add_argument("--quiet", action="store_true", help="no progress bar")
     s.add_argument("--world", default=None, metavar="FILE|PRESET", help=WORLD_HELP)
+    s.add_argument("--plant", default="paper", metavar="paper|gavrilets|FILE", help=PLANT_HELP)
     s.add_argument("--gains", default=None, metavar="FILE", help=GAINS_HELP)
     s.add_argument("--estimator", default=None, metavar="FILE",
                    help="estimator tuning (TOML, docs/estimator.md) for a world with [sensors]")

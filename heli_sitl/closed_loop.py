@@ -14,7 +14,7 @@ import copy
 import dataclasses
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -34,12 +34,22 @@ from heli_common.airframe import PlantConstants
 from heli_common.jit import njit
 from heli_common.mavlink.sim_protocol import as_received
 from heli_common.measurements import N_OUT
+from heli_common.plant_model import PlantModel
 from heli_common.sensor_wire import N_HOME
 from heli_common.state import N_PITCH, N_STATE, FloatArray
 from heli_common.world import World
-from heli_sitl.plant.model import Plant, accept_pitches, plant_step
+from heli_sitl.plant.model import Plant, accept_pitches
+from heli_sitl.plant.rotor import N_ROTOR, RotorConstants
+from heli_sitl.plant.rotor import OFF as ROTOR_OFF
 from heli_sitl.plant.sensors.sensing import Sensing, sense
-from heli_sitl.plant.world.model import N_WP, N_WS, WS_AIR, WS_PITCH, AirConstants, world_plant_step
+from heli_sitl.plant.world.model import (
+    WS_AIR,
+    WS_PITCH,
+    WS_ROTOR,
+    WS_THROTTLE,
+    AirConstants,
+    world_plant_step,
+)
 
 Progress = Callable[[int, int], None]
 CHUNK_TICKS = 500  # progress granularity; each chunk is one compiled call
@@ -58,6 +68,7 @@ class SimOptions:
     estimator: EstimatorConfig = EstimatorConfig()  # used when the world's sensors are on
     controller: str = "tlc"  # or "pid": the cascaded PID baseline
     pid_gains: PidGains | None = None  # None: configs/gains_pid.toml
+    plant: PlantModel = PlantModel("paper")  # or Gavrilets' rotor plant (--plant)
 
 
 @njit
@@ -101,6 +112,8 @@ def _run_ticks(
     use_pid: bool,
     kp: PIDConstants,
     pid_state: FloatArray,
+    g: RotorConstants,
+    rotors: FloatArray,
 ) -> FloatArray:
     x = x0.copy()
     out = np.empty(N_PITCH)
@@ -112,7 +125,7 @@ def _run_ticks(
         if sensing:
             # the controller flies on the estimate from what the sensors measured at t[i]
             resting = i == 0 or loop_s[LS_ON_GROUND] != 0.0
-            mask = sense(t[i], x, held, c, resting, in_world, air, wp, ws, snp, sns, meas, home)
+            mask = sense(t[i], x, held, c, resting, in_world, air, wp, ws, snp, sns, meas, home, g)
             gps = est_tick(eparams, est, t[i], meas, mask, use_baro, x_hat)
             x_hats[i] = x_hat
             log_tick(est, gps, est_log[i])
@@ -126,15 +139,15 @@ def _run_ticks(
         diags[i] = diag
         if i < n_last:
             accept_pitches(out, lo, hi, held)
+            x, on_ground = world_plant_step(t[i], x, held, c, air, dt, n_sub, True, wp, ws, servo_p, servo_s,
+                                            dryden, g)  # fmt: skip
             if in_world:
-                x, on_ground = world_plant_step(
-                    t[i], x, held, c, air, dt, n_sub, True, wp, ws, servo_p, servo_s, dryden
-                )
                 # the truth of the hold that led to the next state, as the plant reports it
                 airs[i + 1] = ws[WS_AIR : WS_AIR + 3]
                 applied[i + 1] = ws[WS_PITCH : WS_PITCH + N_PITCH]
-            else:
-                x, on_ground = plant_step(t[i], x, held, c, dt, n_sub, True)
+            if g.on:
+                rotors[i + 1, :N_ROTOR] = ws[WS_ROTOR : WS_ROTOR + N_ROTOR]
+                rotors[i + 1, N_ROTOR] = ws[WS_THROTTLE]
             loop_s[LS_ON_GROUND] = 1.0 if on_ground else 0.0
     return x
 
@@ -156,6 +169,7 @@ def simulate(
         substeps=opts.plant_substeps or run.plant_substeps,
         world=opts.world,
         step_s=1.0 / rate_hz,
+        model=opts.plant,
     )
     n = round(duration * rate_hz)
     t = np.arange(n + 1) / rate_hz
@@ -166,7 +180,11 @@ def simulate(
     airs = np.full((n + 1, 3), np.nan)  # row 0: no hold before the first state
     applied = np.full((n + 1, N_PITCH), np.nan)
     x = plant.x
-    w = plant.world or CALM_ARRAYS
+    w = plant.world or plant.calm
+    g = plant.world.rotor if plant.world is not None else ROTOR_OFF
+    rotors = np.full((n + 1, N_ROTOR + 1), np.nan)
+    if g.on:
+        rotors[0, :N_ROTOR] = w.ws[WS_ROTOR : WS_ROTOR + N_ROTOR]
     sn = SensingArrays.build(plant, opts.estimator, rate_hz, n)
     if plant.world is not None:
         # the servos start where the first command puts them, as in the plant process; that
@@ -185,7 +203,7 @@ def simulate(
             ctrl.constants, state, plant.constants, plant.lo, plant.hi, held, x, refs, t, k0, k1, n,
             plant.substeps, xs, us, diags, plant.world is not None, w.air, w.wp, ws, w.servo_p,
             servo_s, w.dryden, airs, applied, sn.on, sn.snp, sns, meas, sn.home, sn.eparams, est,
-            sn.use_baro, sn.x_hats, sn.log, loop_s, use_pid, pid.constants, pid_state,
+            sn.use_baro, sn.x_hats, sn.log, loop_s, use_pid, pid.constants, pid_state, g, rotors,
         )  # fmt: skip
 
     loop_s = np.zeros(1)
@@ -204,13 +222,16 @@ def simulate(
         "plant_substeps": plant.substeps, "gains": pid.gains.name if use_pid else scenario.gains.name,
         "controller": opts.controller,
     }  # fmt: skip
+    extra["plant"] = plant.model.kind
     if plant.world is not None or sn.on:
         extra["world"] = plant.world_config.describe(scenario.airframe)
     if sn.on:
         extra["estimator"] = dataclasses.asdict(opts.estimator)
     rec = FlightRecord.from_ticks(t, xs, refs, us, diags, wall, extra)
-    if plant.world is not None:
+    if plant.world is not None and plant.world_config.on:
         rec = dataclasses.replace(rec, air_nwu_m_s=airs, servo_rad=applied)
+    if g.on:
+        rec = dataclasses.replace(rec, rotor=rotors)
     if sn.on:
         rec = dataclasses.replace(rec, x_hat=sn.x_hats, est_log=sn.log)
     return rec
@@ -258,10 +279,11 @@ class SensingArrays:
 
     def first_estimate(self, plant: Plant) -> FloatArray:
         """The estimate of tick 0 (sensors sampled and fused on copies of the arrays)."""
-        w = plant.world or CALM_ARRAYS
+        w = plant.world or plant.calm
+        g = plant.world.rotor if plant.world is not None else ROTOR_OFF
         meas, sns, est, x_hat = self.meas.copy(), self.sns.copy(), self.est.copy(), np.empty(N_STATE)
         mask = sense(0.0, plant.x, plant.u, plant.constants, True, plant.world is not None, w.air, w.wp,
-                     w.ws.copy(), self.snp, sns, meas, self.home)  # fmt: skip
+                     w.ws.copy(), self.snp, sns, meas, self.home, g)  # fmt: skip
         est_tick(self.eparams, est, 0.0, meas, mask, self.use_baro, x_hat)
         return x_hat
 
@@ -270,17 +292,3 @@ class SensingArrays:
         return (self.on, self.snp, self.sns, self.meas, self.home, self.eparams, self.est, self.use_baro,
                 self.x_hats, self.log)  # fmt: skip
 
-
-@dataclass(frozen=True)
-class _Calm:
-    """Placeholder world arrays for the compiled loop when the world is off (never read)."""
-
-    air: AirConstants = AirConstants(False, False, 1.0, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0)
-    wp: FloatArray = field(default_factory=lambda: np.zeros(N_WP))
-    ws: FloatArray = field(default_factory=lambda: np.zeros(N_WS))
-    servo_p: FloatArray = field(default_factory=lambda: np.zeros((N_PITCH, 1)))
-    servo_s: FloatArray = field(default_factory=lambda: np.zeros(1))
-    dryden: FloatArray = field(default_factory=lambda: np.zeros(1))
-
-
-CALM_ARRAYS = _Calm()

@@ -20,8 +20,11 @@ from autopilot.tlc.controller import N_DIAG, TLCConstants, TLController
 from autopilot.tlc.gains import Gains
 from heli_common.airframe import Airframe, PlantConstants
 from heli_common.state import N_PITCH, N_STATE, PSI, Z_U, FloatArray
-from heli_sitl.closed_loop import CALM_ARRAYS, SensingArrays, _run_ticks
+from heli_sitl.closed_loop import SensingArrays, _run_ticks
 from heli_sitl.plant.model import Plant
+from heli_sitl.plant.rotor import N_ROTOR
+from heli_sitl.plant.rotor import OFF as ROTOR_OFF
+from heli_sitl.plant.world.model import CalmArrays
 
 # The first call of a compiled function loads (or compiles) it: no per-example deadline.
 # HYPOTHESIS_PROFILE=thorough runs 20x more examples per property.
@@ -79,12 +82,13 @@ def fly(
     us = np.empty((n + 1, N_PITCH))
     diags = np.empty((n + 1, N_DIAG))
     held = np.zeros(N_PITCH)
-    w = CALM_ARRAYS  # the paper's ideal world
+    w = CalmArrays()  # the paper's ideal world
     x_next = _run_ticks(
         k, ctrl_state, plant.constants, plant.lo, plant.hi, held, np.asarray(x0, dtype=float),
         refs, t, 0, n + 1, n + 1, plant.substeps, xs, us, diags, False, w.air, w.wp, w.ws,
         w.servo_p, w.servo_s, w.dryden, np.zeros((n + 1, 3)), np.zeros((n + 1, N_PITCH)),
-        *SensingArrays.off().args(), np.zeros(1), False, PID_OFF.constants, PID_OFF.state.copy(),
+        *SensingArrays.off().args(), np.zeros(1), False, PID_OFF.constants, PID_OFF.state.copy(), ROTOR_OFF,
+        np.zeros((1, N_ROTOR + 1)),
     )  # fmt: skip
     return Flight(xs, us, diags, t, x_next)
 

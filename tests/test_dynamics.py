@@ -17,8 +17,7 @@ from scipy.spatial.transform import Rotation
 from heli_common.airframe import Airframe, PlantConstants
 from heli_common.state import EULER, N_STATE, OMEGA, POS, VEL, Z_U, FloatArray
 from heli_sitl.plant.dynamics import derivative, forces_torques, rigid_body, rotor_loads
-from heli_sitl.plant.integrate import rk4_step
-from heli_sitl.plant.model import Plant
+from heli_sitl.plant.model import Plant, plant_step
 
 ZERO3 = np.zeros(3)
 
@@ -225,8 +224,8 @@ def test_rk4_is_fourth_order(consts: PlantConstants) -> None:
     x = random_state(np.random.default_rng(7), rate_scale=2.0)
     u = np.array([0.12, 0.1, 0.05, -0.04])
     dt = 0.2
-    exact = rk4_step(0.0, x, u, consts, dt, 2048)
-    errs = [np.abs(rk4_step(0.0, x, u, consts, dt, n) - exact).max() for n in (4, 8, 16)]
+    exact = plant_step(0.0, x, u, consts, dt, 2048, False)[0]
+    errs = [np.abs(plant_step(0.0, x, u, consts, dt, n, False)[0] - exact).max() for n in (4, 8, 16)]
     ratios = [errs[0] / errs[1], errs[1] / errs[2]]
     assert all(12.0 < r < 20.0 for r in ratios), (errs, ratios)
 

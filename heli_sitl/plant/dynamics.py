@@ -57,6 +57,19 @@ def forces_torques(x: FloatArray, u: FloatArray, c: PlantConstants) -> tuple[Flo
 
 
 @njit
+def gravity_flu(x: FloatArray, c: PlantConstants) -> FloatArray:
+    """Weight in body FLU [N]: ``m R^T (0, 0, -g)``."""
+    sph, cph = math.sin(x[PHI]), math.cos(x[PHI])
+    sth, cth = math.sin(x[THETA]), math.cos(x[THETA])
+    mg = c.mass_kg * c.gravity_m_s2
+    f = np.empty(3)
+    f[0] = mg * sth
+    f[1] = -mg * cth * sph
+    f[2] = -mg * cth * cph
+    return f
+
+
+@njit
 def forces_from_loads(
     x: FloatArray, u: FloatArray, c: PlantConstants, tm: float, qm: float, tt: float, qt: float
 ) -> tuple[FloatArray, FloatArray]:
@@ -65,13 +78,10 @@ def forces_from_loads(
     eps, eta = u[EPS], u[ETA]
     seps, ceps, seta, ceta = math.sin(eps), math.cos(eps), math.sin(eta), math.cos(eta)
     d = math.sqrt(1.0 - seps * seps * seta * seta)
-    sph, cph = math.sin(x[PHI]), math.cos(x[PHI])
-    sth, cth = math.sin(x[THETA]), math.cos(x[THETA])
-    mg = c.mass_kg * c.gravity_m_s2
-    f = np.empty(3)
-    f[0] = mg * sth + tm * seps * ceta / d
-    f[1] = -mg * cth * sph - tm * ceps * seta / d - tt
-    f[2] = -mg * cth * cph + tm * ceps * ceta / d
+    f = gravity_flu(x, c)
+    f[0] = f[0] + tm * seps * ceta / d
+    f[1] = f[1] - tm * ceps * seta / d - tt
+    f[2] = f[2] + tm * ceps * ceta / d
     q = np.empty(3)
     q[0] = tm * c.hm * seta + tt * c.ht + qm * seps
     q[1] = tm * c.lm + tm * c.hm * seps + qt - qm * seta

@@ -8,12 +8,23 @@ from heli_common.airframe import Airframe, PlantConstants
 from heli_common.defaults import HOME
 from heli_common.geo import GeoPoint
 from heli_common.jit import njit
+from heli_common.plant_model import PlantModel
 from heli_common.state import N_PITCH, N_STATE, FloatArray
 from heli_common.world import World, with_sim_param
-from heli_sitl.plant.contact import apply_ground_contact
-from heli_sitl.plant.integrate import rk4_step
+from heli_sitl.plant import rotor
 from heli_sitl.plant.sensors.sensing import Sensing
-from heli_sitl.plant.world.model import WP_SERVOS_ON, WP_TURB_ON, WorldModel, world_plant_step
+from heli_sitl.plant.world.model import (
+    CALM_AIR,
+    DIST_NONE,
+    N_WP,
+    N_WS,
+    WP_DIST_KIND,
+    WP_SERVOS_ON,
+    WP_TURB_ON,
+    CalmArrays,
+    WorldModel,
+    world_plant_step,
+)
 
 
 @njit
@@ -32,10 +43,12 @@ def accept_pitches(u: FloatArray, lo: FloatArray, hi: FloatArray, held: FloatArr
 def plant_step(
     t: float, x: FloatArray, u: FloatArray, c: PlantConstants, dt: float, n_sub: int, contact: bool
 ) -> tuple[FloatArray, bool]:
-    """RK4 over one hold interval, then ground contact; returns (new state, on ground)."""
-    y = rk4_step(t, x, u, c, dt, n_sub)
-    on_ground = apply_ground_contact(y, x) if contact else False
-    return y, on_ground
+    """The paper's plant in the ideal world: :func:`world_plant_step` with every effect off
+    (RK4 over one hold interval, then ground contact); returns (new state, on ground)."""
+    wp = np.zeros(N_WP)
+    wp[WP_DIST_KIND] = DIST_NONE
+    return world_plant_step(t, x, u, c, CALM_AIR, dt, n_sub, contact, wp, np.zeros(N_WS),
+                            np.zeros((N_PITCH, 1)), np.zeros(1), np.zeros(1), rotor.OFF)  # fmt: skip
 
 
 class Plant:
@@ -47,6 +60,8 @@ class Plant:
     plant then flies the world's airframe, ``airframe`` being the controller's design.
     With the world's sensors on, :attr:`sensing` holds what they measured at :attr:`t_s`
     (sampled at the start and after every step of ``step_s``; GPS about ``home``).
+    ``model`` (default: the paper's) chooses the plant: Gavrilets' rotor plant always runs
+    in a world (calm if none is given), its rotor starting in hover trim.
     """
 
     def __init__(
@@ -59,6 +74,7 @@ class Plant:
         world: World | None = None,
         step_s: float = 0.01,
         home: GeoPoint = HOME,
+        model: PlantModel | None = None,
     ) -> None:
         if substeps < 1:
             raise ValueError("substeps must be >= 1")
@@ -66,8 +82,17 @@ class Plant:
         if self.x.shape != (N_STATE,) or not np.all(np.isfinite(self.x)):
             raise ValueError("initial state must be 12 finite numbers")
         self.design = airframe
+        self.model = model if model is not None else PlantModel("paper")
         self.world_config = world if world is not None else World()
-        self.world = WorldModel.build(world, airframe, self.x) if world is not None and world.on else None
+        self.world: WorldModel | None = None
+        if self.model.rotor is not None:
+            from heli_sitl.plant.trim import hover_rotor_state
+
+            r0 = np.array(hover_rotor_state(self.model, airframe))
+            self.world = WorldModel.build(self.world_config, airframe, self.x, self.model.rotor, r0)
+        elif world is not None and world.on:
+            self.world = WorldModel.build(world, airframe, self.x)
+        self.calm = CalmArrays()
         self.airframe = airframe if self.world is None else self.world.airframe
         self.constants = self.airframe.constants()
         self.t_s = 0.0
@@ -88,7 +113,7 @@ class Plant:
             wp = w.wp.copy()
             wp[WP_SERVOS_ON] = wp[WP_TURB_ON] = 0.0  # their arrays are built on the first step
             world_plant_step(0.0, self.x, self.u, self.constants, w.air, 1e-3, 1, False, wp,
-                             w.ws.copy(), w.servo_p, w.servo_s.copy(), w.dryden)  # fmt: skip
+                             w.ws.copy(), w.servo_p, w.servo_s.copy(), w.dryden, w.rotor)  # fmt: skip
 
     def set_pitches(self, u: FloatArray) -> bool:
         """Hold new pitches [rad]; False (and the old ones kept) if any is not finite."""
@@ -106,8 +131,9 @@ class Plant:
     def _sense(self, resting: bool) -> None:
         s, w = self.sensing, self.world
         if s is not None:
-            s.sample(self.t_s, self.x, self.u, self.constants, resting,
-                     None if w is None else (w.air, w.wp, w.ws))  # fmt: skip
+            world = None if w is None else (w.air, w.wp, w.ws)
+            g = rotor.OFF if w is None else w.rotor
+            s.sample(self.t_s, self.x, self.u, self.constants, resting, world, g)
 
     def set_sim_param(self, name: str, value: float) -> bool:
         """A live world or sensor setting (a SIM_ parameter): taken from the next step on.
@@ -142,14 +168,16 @@ class Plant:
     def step(self, dt_s: float) -> FloatArray:
         w = self.world
         if w is None:
-            self.x, self.on_ground = plant_step(
-                self.t_s, self.x, self.u, self.constants, dt_s, self.substeps, self.ground_contact
-            )
+            k = self.calm
+            self.x, self.on_ground = world_plant_step(
+                self.t_s, self.x, self.u, self.constants, k.air, dt_s, self.substeps, self.ground_contact,
+                k.wp, k.ws, k.servo_p, k.servo_s, k.dryden, rotor.OFF,
+            )  # fmt: skip
         else:
             w.prepare(dt_s / self.substeps, self.u, np.column_stack([self.lo, self.hi]))
             self.x, self.on_ground = world_plant_step(
                 self.t_s, self.x, self.u, self.constants, w.air, dt_s, self.substeps, self.ground_contact,
-                w.wp, w.ws, w.servo_p, w.servo_s, w.dryden,
+                w.wp, w.ws, w.servo_p, w.servo_s, w.dryden, w.rotor,
             )  # fmt: skip
         # on the sim link's microsecond grid: the plant's clock (and its sensors' time stamps)
         # is then exactly the in-process loop's k / rate, whatever the accumulated rounding

@@ -35,16 +35,19 @@ from heli_common.measurements import (
 from heli_common.sensor_wire import BARO_FIELD, IMU_FIELDS, gps_to_wire, home_array, to_wire_resolution
 from heli_common.sensors import Sensors
 from heli_common.state import N_PITCH, FloatArray
+from heli_common.world import World
+from heli_sitl.plant import rotor
 from heli_sitl.plant.dynamics import derivative
+from heli_sitl.plant.rotor import RotorConstants
 from heli_sitl.plant.sensors.model import SensorModel, earth_accel_from_derivative, sensor_step
 from heli_sitl.plant.world.model import (
-    N_WP,
     N_WS,
     WS_AIR,
     WS_PITCH,
     WS_STEP,
     AirConstants,
-    derivative_in_air,
+    body_derivative_in_air,
+    world_parameters,
 )
 
 
@@ -52,7 +55,7 @@ from heli_sitl.plant.world.model import (
 def sense(
     t_s: float, x: FloatArray, held: FloatArray, c: PlantConstants, resting: bool, in_world: bool,
     air: AirConstants, wp: FloatArray, ws: FloatArray, snp: FloatArray, sns: FloatArray,
-    out: FloatArray, home: FloatArray,
+    out: FloatArray, home: FloatArray, g: RotorConstants,
 ) -> int:  # fmt: skip
     """Sample every sensor at ``t_s`` for the true state ``x``; returns the mask of new
     samples (``out`` holds the latest of each). ``held``: the pitches commanded over the
@@ -62,10 +65,10 @@ def sense(
     acc = np.zeros(3)
     if not resting:
         if in_world and ws[WS_STEP] > 0.0:
-            xdot = derivative_in_air(t_s, x, ws[WS_PITCH : WS_PITCH + N_PITCH].copy(), c, air,
-                                     ws[WS_AIR : WS_AIR + 3].copy(), wp, ws)  # fmt: skip
+            xdot = body_derivative_in_air(t_s, x, ws[WS_PITCH : WS_PITCH + N_PITCH].copy(), c, air,
+                                          ws[WS_AIR : WS_AIR + 3].copy(), wp, ws, g)  # fmt: skip
         elif in_world:
-            xdot = derivative_in_air(t_s, x, held, c, air, np.zeros(3), wp, ws)
+            xdot = body_derivative_in_air(t_s, x, held, c, air, np.zeros(3), wp, ws, g)
         else:
             xdot = derivative(t_s, x, held, c)
         acc[0], acc[1], acc[2] = earth_accel_from_derivative(x, xdot)
@@ -95,7 +98,7 @@ class Sensing:
 
     def sample(
         self, t_s: float, x: FloatArray, held: FloatArray, c: PlantConstants, resting: bool,
-        world: tuple[AirConstants, FloatArray, FloatArray] | None,
+        world: tuple[AirConstants, FloatArray, FloatArray] | None, g: RotorConstants = rotor.OFF,
     ) -> int:  # fmt: skip
         m = self.model
         if world is None:
@@ -103,7 +106,7 @@ class Sensing:
         else:
             air, wp, ws = world
         self.mask = sense(t_s, x, held, c, resting, world is not None, air, wp, ws, m.params, m.state,
-                          m.out, self.home)  # fmt: skip
+                          m.out, self.home, g)  # fmt: skip
         return self.mask
 
 
@@ -127,5 +130,5 @@ def encode_measurements(codec: SimCodec, t_s: float, sensing: Sensing) -> bytes:
 
 # never read (in_world False), only there for the compiled signature
 _NO_AIR = AirConstants(False, False, 1.0, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0)
-_NO_WP = np.zeros(N_WP)
+_NO_WP = world_parameters(World())
 _NO_WS = np.zeros(N_WS)

@@ -103,7 +103,7 @@ def _clip(x: float) -> float:
 
 
 @njit
-def _advance_ratios(u_h: float, v_h: float, w_h: float, tip_speed_m_s: float) -> tuple[float, float]:
+def advance_ratios(u_h: float, v_h: float, w_h: float, tip_speed_m_s: float) -> tuple[float, float]:
     """(mu, mu_z): in-plane and axial (along the thrust) hub airspeed over the tip speed."""
     mu = min(math.hypot(u_h, v_h) / tip_speed_m_s, _CLAMP)
     return mu, _clip(w_h / tip_speed_m_s)
@@ -179,7 +179,7 @@ def rotor_inflow(
     (> 0), wake factor ``eta_w`` (> 0; 1 reproduces the hover map). ``lam_guess``: the
     previous ``lam`` (any value works; 0 means none). Odd in ``(theta, w_h, lam_guess)``.
     """
-    mu, mu_z = _advance_ratios(u_h, v_h, w_h, tip_speed_m_s)
+    mu, mu_z = advance_ratios(u_h, v_h, w_h, tip_speed_m_s)
     return _solve_inflow(theta, mu, mu_z, lift_slope, solidity, eta_w, lam_guess)
 
 
@@ -206,7 +206,7 @@ def vortex_ring_flag(mu: float, mu_z: float, lam_hover: float) -> bool:
 
 
 @njit
-def _loads(
+def rotor_loads_from_ratios(
     theta: float, mu: float, mu_z: float, a: float, s: float, delta: float, thrust_scale: float,
     torque_scale: float, tip_speed_m_s: float, eta_w: float, lam_guess: float,
 ) -> tuple[float, float, float, float]:  # fmt: skip
@@ -234,9 +234,9 @@ def main_rotor_loads_in_air(
     this is :func:`heli_sitl.plant.dynamics.rotor_loads`' main rotor (for ``eta_w = 1``).
     ``v_i = lam Omega R`` is the downwash :func:`fuselage_force_flu` takes.
     """
-    mu, mu_z = _advance_ratios(u_h, v_h, w_h, tip_speed_m_s)
-    return _loads(theta_m, mu, mu_z, c.a_m, c.s_m, c.delta, c.thrust_scale_m, c.torque_scale_m,
-                  tip_speed_m_s, eta_w, lam_guess)  # fmt: skip
+    mu, mu_z = advance_ratios(u_h, v_h, w_h, tip_speed_m_s)
+    return rotor_loads_from_ratios(theta_m, mu, mu_z, c.a_m, c.s_m, c.delta, c.thrust_scale_m,
+                                   c.torque_scale_m, tip_speed_m_s, eta_w, lam_guess)  # fmt: skip
 
 
 @njit
@@ -257,9 +257,9 @@ def tail_rotor_loads_in_air(
     (climb) speed is ``-v_h = -v_a + r lt + p ht`` and the in-plane speed is ``|(u_h, w_h)|``
     with ``u_h = u_a + q ht``, ``w_h = w_a + q lt``. ``tip_speed_m_s = Omega_t R_t``.
     """
-    mu, mu_z = _advance_ratios(u_h, w_h, -v_h, tip_speed_m_s)
-    return _loads(theta_t, mu, mu_z, c.a_t, c.s_t, c.delta, c.thrust_scale_t, c.torque_scale_t,
-                  tip_speed_m_s, eta_w, lam_guess)  # fmt: skip
+    mu, mu_z = advance_ratios(u_h, w_h, -v_h, tip_speed_m_s)
+    return rotor_loads_from_ratios(theta_t, mu, mu_z, c.a_t, c.s_t, c.delta, c.thrust_scale_t,
+                                   c.torque_scale_t, tip_speed_m_s, eta_w, lam_guess)  # fmt: skip
 
 
 @njit

@@ -20,7 +20,7 @@ same flight. With the world off, the plant does not call any of this.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import NamedTuple
 
@@ -30,10 +30,13 @@ from heli_common.airframe import Airframe, PlantConstants
 from heli_common.gusts import gust_factor, mean_wind_nwu
 from heli_common.jit import njit
 from heli_common.kinematics import rot_body_to_earth
-from heli_common.state import N_PITCH, P_X, PHI, PSI, Q_Y, R_Z, THETA, U_F, V_L, W_U, FloatArray
+from heli_common.plant_model import RotorPlant
+from heli_common.state import N_PITCH, N_STATE, P_X, PHI, PSI, Q_Y, R_Z, THETA, U_F, V_L, W_U, FloatArray
 from heli_common.world import World
+from heli_sitl.plant import rotor
 from heli_sitl.plant.contact import apply_ground_contact
 from heli_sitl.plant.dynamics import forces_from_loads, rigid_body, rotor_loads
+from heli_sitl.plant.rotor import N_ROTOR, RotorConstants
 from heli_sitl.plant.world import air, servos, wind
 
 
@@ -71,6 +74,7 @@ WP_DIST_FREQ = 23
 WP_SERVOS_ON = 24
 N_WP = 25
 DIST_KINDS = {"constant": 0.0, "step": 1.0, "sine": 2.0}
+DIST_NONE = -1.0  # no disturbance: nothing added (not even a zero)
 
 # world state (float64 array), advanced by the compiled step
 WS_STEP = 0  # sub-steps taken (the noise counter)
@@ -79,7 +83,9 @@ WS_LAM_TAIL = 2
 WS_AIR = 3  # 3: the air velocity of the last sub-step, earth NWU [m/s]
 WS_PITCH = 6  # 4: the blade pitches of the last sub-step [rad]
 WS_TURB = 10  # wind.N_DRYDEN_STATE
-N_WS = WS_TURB + wind.N_DRYDEN_STATE
+WS_ROTOR = WS_TURB + wind.N_DRYDEN_STATE  # rotor.N_ROTOR: the rotor plant's own states
+WS_THROTTLE = WS_ROTOR + rotor.N_ROTOR  # the governor's throttle of the last sub-step [0, 1]
+N_WS = WS_THROTTLE + 1
 
 
 @njit
@@ -113,6 +119,8 @@ def air_velocity_nwu(
 @njit
 def disturbance_scale(t: float, wp: FloatArray) -> float:
     kind, t0 = wp[WP_DIST_KIND], wp[WP_DIST_START]
+    if kind == DIST_NONE:
+        return 0.0
     if kind == 0.0:
         return 1.0
     if t < t0:
@@ -125,12 +133,19 @@ def disturbance_scale(t: float, wp: FloatArray) -> float:
 @njit
 def derivative_in_air(
     t: float, x: FloatArray, u: FloatArray, c: PlantConstants, a: AirConstants,
-    w_nwu: FloatArray, wp: FloatArray, ws: FloatArray,
+    w_nwu: FloatArray, wp: FloatArray, ws: FloatArray, g: RotorConstants,
 ) -> FloatArray:  # fmt: skip
-    """dx/dt with the air ``w_nwu`` held: rotor loads with inflow (or the hover maps),
-    fuselage drag on the air-relative velocity, and the injected disturbance."""
+    """dx/dt with the air ``w_nwu`` held. The paper's plant (``g.on`` False): rotor loads
+    with inflow (or the hover maps), fuselage drag on the air-relative velocity; the rotor
+    plant (:mod:`heli_sitl.plant.rotor`): its own loads and its rotor states after the rigid
+    body's in ``x``. Then the injected disturbance."""
     rt = rot_body_to_earth(x[PHI], x[THETA], x[PSI])
     u_a, v_a, w_a = air_relative_flu(x, rt, w_nwu)
+    dr = np.empty(0)
+    if g.on:
+        f, q, dr, _, _, _ = rotor.rotor_loads(x, u, c, g, u_a, v_a, w_a, ws[WS_LAM_MAIN], ws[WS_LAM_TAIL],
+                                              N_STATE)  # fmt: skip
+        return _with_disturbance(t, x, rt, f, q, c, wp, dr, g.rot)
     if a.inflow:
         tm, qm, tt, qt, lam_m, _ = air.rotor_loads_in_air(
             u[0], u[1], u_a, v_a, w_a, x[P_X], x[Q_Y], x[R_Z], c, a.tip_speed_main,
@@ -146,6 +161,16 @@ def derivative_in_air(
         f[0] += fx
         f[1] += fy
         f[2] += fz
+    return _with_disturbance(t, x, rt, f, q, c, wp, dr, 0.0)
+
+
+@njit
+def _with_disturbance(
+    t: float, x: FloatArray, rt: FloatArray, f: FloatArray, q: FloatArray, c: PlantConstants, wp: FloatArray,
+    dr: FloatArray, rot: float,
+) -> FloatArray:  # fmt: skip
+    """The injected disturbance added to ``f``, ``q``; the rigid body's derivative, then the
+    rotor states' ``dr`` (the rotor speed relative to a fuselage yawing at ``r'``: ``- rot r'``)."""
     s = disturbance_scale(t, wp)
     if s != 0.0:
         df, dq = wp[WP_DIST_FORCE : WP_DIST_FORCE + 3], wp[WP_DIST_TORQUE : WP_DIST_TORQUE + 3]
@@ -157,20 +182,34 @@ def derivative_in_air(
             for i in range(3):
                 f[i] += s * (rt[0, i] * df[0] + rt[1, i] * df[1] + rt[2, i] * df[2])
                 q[i] += s * (rt[0, i] * dq[0] + rt[1, i] * dq[1] + rt[2, i] * dq[2])
-    return rigid_body(x, f, q, c)
+    dx = rigid_body(x, f, q, c)
+    if dr.shape[0] == 0:
+        return dx
+    out = np.empty(N_STATE + dr.shape[0])
+    out[:N_STATE] = dx
+    out[N_STATE:] = dr
+    out[N_STATE + rotor.OMEGA_R] -= rot * dx[R_Z]
+    return out
 
 
 @njit
 def world_plant_step(
     t: float, x: FloatArray, u_cmd: FloatArray, c: PlantConstants, a: AirConstants, dt: float,
     n_sub: int, contact: bool, wp: FloatArray, ws: FloatArray, servo_p: FloatArray,
-    servo_s: FloatArray, dryden: FloatArray,
+    servo_s: FloatArray, dryden: FloatArray, g: RotorConstants,
 ) -> tuple[FloatArray, bool]:  # fmt: skip
-    """:func:`heli_sitl.plant.model.plant_step` in the world: RK4 over one hold interval of
-    the command ``u_cmd`` in ``n_sub`` sub-steps, servos, air and disturbance advanced per
-    sub-step (the air and pitches held within one), then ground contact."""
+    """The plant's one step (the only RK4): over one hold interval of the command ``u_cmd``
+    in ``n_sub`` sub-steps, servos, air and disturbance advanced per sub-step (the air and
+    pitches held within one), then ground contact. With the rotor plant (``g.on``) its
+    states (``ws[WS_ROTOR:]``) are integrated with the rigid body's; with every effect off
+    this is the paper's plant alone."""
     h = dt / n_sub
-    y = x.copy()
+    if g.on:
+        y = np.empty(N_STATE + N_ROTOR)
+        y[:N_STATE] = x
+        y[N_STATE:] = ws[WS_ROTOR : WS_ROTOR + N_ROTOR]
+    else:
+        y = x.copy()
     u = u_cmd.copy()
     w_nwu = np.zeros(3)
     for k in range(n_sub):
@@ -178,19 +217,43 @@ def world_plant_step(
         if wp[WP_SERVOS_ON] != 0.0:
             servos.servo_step(servo_p, servo_s, u_cmd, u)
         w_nwu[0], w_nwu[1], w_nwu[2] = air_velocity_nwu(tk, wp, ws, dryden)
-        k1 = derivative_in_air(tk, y, u, c, a, w_nwu, wp, ws)
-        k2 = derivative_in_air(tk + 0.5 * h, y + 0.5 * h * k1, u, c, a, w_nwu, wp, ws)
-        k3 = derivative_in_air(tk + 0.5 * h, y + 0.5 * h * k2, u, c, a, w_nwu, wp, ws)
-        k4 = derivative_in_air(tk + h, y + h * k3, u, c, a, w_nwu, wp, ws)
+        k1 = derivative_in_air(tk, y, u, c, a, w_nwu, wp, ws, g)
+        k2 = derivative_in_air(tk + 0.5 * h, y + 0.5 * h * k1, u, c, a, w_nwu, wp, ws, g)
+        k3 = derivative_in_air(tk + 0.5 * h, y + 0.5 * h * k2, u, c, a, w_nwu, wp, ws, g)
+        k4 = derivative_in_air(tk + h, y + h * k3, u, c, a, w_nwu, wp, ws, g)
         y = y + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
-        if a.inflow:  # the next solve starts from this step's inflow
+        if g.on:  # the next solves start from this step's inflow; the throttle, for the record
+            rt = rot_body_to_earth(y[PHI], y[THETA], y[PSI])
+            u_a, v_a, w_a = air_relative_flu(y, rt, w_nwu)
+            _, _, _, lam_m, lam_t, thr = rotor.rotor_loads(y, u, c, g, u_a, v_a, w_a, ws[WS_LAM_MAIN],
+                                                           ws[WS_LAM_TAIL], N_STATE)  # fmt: skip
+            ws[WS_LAM_MAIN], ws[WS_LAM_TAIL], ws[WS_THROTTLE] = lam_m, lam_t, thr
+        elif a.inflow:  # the next solve starts from this step's inflow
             _, _, _, _, lam_m, lam_t = _inflow_now(y, u, c, a, w_nwu, ws)
             ws[WS_LAM_MAIN], ws[WS_LAM_TAIL] = lam_m, lam_t
         ws[WS_STEP] += 1.0
     ws[WS_AIR : WS_AIR + 3] = w_nwu
     ws[WS_PITCH : WS_PITCH + N_PITCH] = u
+    if g.on:
+        ws[WS_ROTOR : WS_ROTOR + N_ROTOR] = y[N_STATE:]
+        y = y[:N_STATE].copy()
     on_ground = apply_ground_contact(y, x) if contact else False
     return y, on_ground
+
+
+@njit
+def body_derivative_in_air(
+    t: float, x: FloatArray, u: FloatArray, c: PlantConstants, a: AirConstants, w_nwu: FloatArray,
+    wp: FloatArray, ws: FloatArray, g: RotorConstants,
+) -> FloatArray:  # fmt: skip
+    """The rigid body's 12 derivatives at ``x`` (the rotor plant's states taken from ``ws``):
+    what an accelerometer on the body measures."""
+    if g.on:
+        y = np.empty(N_STATE + N_ROTOR)
+        y[:N_STATE] = x
+        y[N_STATE:] = ws[WS_ROTOR : WS_ROTOR + N_ROTOR]
+        return derivative_in_air(t, y, u, c, a, w_nwu, wp, ws, g)[:N_STATE].copy()
+    return derivative_in_air(t, x, u, c, a, w_nwu, wp, ws, g)
 
 
 @njit
@@ -228,10 +291,26 @@ def world_parameters(world: World) -> FloatArray:
     wp[WP_DIST_FORCE : WP_DIST_FORCE + 3] = d.force_n
     wp[WP_DIST_TORQUE : WP_DIST_TORQUE + 3] = d.torque_n_m
     wp[WP_DIST_BODY] = 1.0 if d.frame == "body" else 0.0
-    wp[WP_DIST_KIND] = DIST_KINDS[d.kind]
+    wp[WP_DIST_KIND] = DIST_KINDS[d.kind] if d.on else DIST_NONE
     wp[WP_DIST_START], wp[WP_DIST_FREQ] = d.start_s, d.frequency_hz
     wp[WP_SERVOS_ON] = 1.0 if world.servos.on else 0.0
     return wp
+
+
+CALM_AIR = AirConstants(False, False, 1.0, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0)
+
+
+@dataclass(frozen=True)
+class CalmArrays:
+    """A world with every effect off, as the compiled step's arrays: the paper's ideal world
+    is this path too (one plant step). ``ws`` is the caller's own (the step writes it)."""
+
+    air: AirConstants = CALM_AIR
+    wp: FloatArray = field(default_factory=lambda: world_parameters(World()))
+    ws: FloatArray = field(default_factory=lambda: np.zeros(N_WS))
+    servo_p: FloatArray = field(default_factory=lambda: np.zeros((N_PITCH, 1)))
+    servo_s: FloatArray = field(default_factory=lambda: np.zeros(1))
+    dryden: FloatArray = field(default_factory=lambda: np.zeros(1))
 
 
 @dataclass
@@ -253,10 +332,18 @@ class WorldModel:
     servo_s: FloatArray
     x0: FloatArray
     h_s: float = 0.0
+    rotor: RotorConstants = rotor.OFF
 
     @classmethod
-    def build(cls, world: World, design: Airframe, x0: FloatArray) -> WorldModel:
-        af = world.mismatch.apply(design, Path(world.source).parent if world.source else None)
+    def build(
+        cls, world: World, design: Airframe, x0: FloatArray, rotor_plant: RotorPlant | None = None,
+        rotor_state0: FloatArray | None = None,
+    ) -> WorldModel:  # fmt: skip
+        """The world's arrays about the plant: the paper's on ``design`` (mismatch applied),
+        or the rotor plant on its own airframe (mismatch applied) starting from
+        ``rotor_state0`` (layout :data:`heli_sitl.plant.rotor.ROTOR_STATE`)."""
+        base = design if rotor_plant is None else rotor_plant.airframe()
+        af = world.mismatch.apply(base, Path(world.source).parent if world.source else None)
         c = af.constants()
         ar = world.air
         a = AirConstants(
@@ -270,8 +357,14 @@ class WorldModel:
         ws = np.zeros(N_WS)
         # the inflow solver's first guesses: about the hover inflow (it converges from anywhere)
         ws[WS_LAM_MAIN] = ws[WS_LAM_TAIL] = 0.05
+        g = rotor.OFF
+        if rotor_plant is not None:
+            g = rotor.rotor_constants(rotor_plant, af)
+            if rotor_state0 is None:
+                raise ValueError("the rotor plant needs its initial rotor state")
+            ws[WS_ROTOR : WS_ROTOR + N_ROTOR] = rotor_state0
         return cls(world, af, c, a, wp, ws, np.zeros(wind.N_DRYDEN_COEFFS), np.zeros((N_PITCH, 1)),
-                   np.zeros(1), np.asarray(x0, dtype=float))  # fmt: skip
+                   np.zeros(1), np.asarray(x0, dtype=float), rotor=g)  # fmt: skip
 
     def _dryden(self, h_s: float) -> None:
         """Dryden coefficients for step ``h_s``: scale lengths and intensities at the
@@ -334,3 +427,9 @@ class WorldModel:
     def pitches_rad(self) -> FloatArray:
         return self.ws[WS_PITCH : WS_PITCH + N_PITCH].copy()
 
+
+
+    @property
+    def rotor_state(self) -> FloatArray:
+        """The rotor plant's states now (layout :data:`heli_sitl.plant.rotor.ROTOR_STATE`)."""
+        return self.ws[WS_ROTOR : WS_ROTOR + N_ROTOR].copy()
