@@ -118,6 +118,41 @@ def _tune(args: argparse.Namespace) -> int:
     return 0
 
 
+def _trim(args: argparse.Namespace) -> int:
+    from heli_common.plant_model import PlantModel
+    from heli_common.scenario_file import load_vehicle
+    from heli_sitl.plant.trim import linearize, trim
+
+    design = load_vehicle(args.scenario)[0]
+    model = PlantModel.load(args.plant)
+    out = []
+    for v in args.speed_m_s or [0.0]:
+        tr = trim(model, design, speed_m_s=v)
+        lin = linearize(tr, model, design)
+        out.append({"trim": tr.as_dict(), "modes": [
+            {"name": m.name, "eigenvalue": [m.eigenvalue.real, m.eigenvalue.imag],
+             "natural_frequency_rad_s": m.natural_frequency_rad_s, "damping": m.damping,
+             "dominant": list(m.dominant)} for m in lin.modes]})  # fmt: skip
+    if args.json:
+        print(json.dumps(out, indent=2))
+        return 0
+    for item in out:
+        t = item["trim"]
+        assert isinstance(t, dict)
+        print(f"{model.kind} plant, level flight at {t['speed_m_s']:g} m/s "
+              f"(residual {t['residual_max']:.1e}):")  # fmt: skip
+        for k, v in t.items():
+            if k not in ("plant", "speed_m_s", "residual_max"):
+                print(f"  {k:18s} {v: .5f}")
+        print(f"  {'mode':36s} {'eigenvalue':>22s} {'w_n rad/s':>10s} {'damping':>8s}  dominant")
+        for m in item["modes"]:
+            assert isinstance(m, dict)
+            ev = complex(*m["eigenvalue"])
+            print(f"  {m['name']:36s} {ev.real:10.3f} {ev.imag:+10.3f}j {m['natural_frequency_rad_s']:10.3f} "
+                  f"{m['damping']:8.3f}  {', '.join(m['dominant'])}")  # fmt: skip
+    return 0
+
+
 def _compare(args: argparse.Namespace) -> int:
     from heli_sitl.compare import command_line, run_compare
 
@@ -132,6 +167,7 @@ def _run(args: argparse.Namespace) -> int:
     import threading
 
     from heli_common.mavlink.udp import LOOPBACK, MavlinkUdp, PortBusyError
+    from heli_common.plant_model import PlantModel
     from heli_common.scenario_file import load_vehicle
     from heli_common.servo_link import load_servo_link, with_overrides
     from heli_sitl.plant.model import Plant
@@ -152,7 +188,7 @@ def _run(args: argparse.Namespace) -> int:
                     hold_until_armed=args.hold_until_armed)  # fmt: skip
     world = World.load(args.world) if args.world else None
     plant = Plant(airframe, x0, substeps=args.plant_substeps, world=world, step_s=1.0 / cfg.rate_hz,
-                  home=parse_geo_point(args.home, "--home"))  # fmt: skip
+                  home=parse_geo_point(args.home, "--home"), model=PlantModel.load(args.plant))  # fmt: skip
     try:
         # the plant is component 51 of the vehicle; it takes commands from system 1 only
         link = MavlinkUdp((LOOPBACK, args.port), (LOOPBACK, args.autopilot_port), system_id=1,
@@ -197,7 +233,7 @@ def _up(args: argparse.Namespace) -> int:
         mode=args.mode, rate_hz=args.rate_hz, scenario=args.scenario, in_air=args.in_air,
         gcs_port=args.gcs_port, api_port=args.api_port, local_gcs_port=args.local_gcs_port,
         local_api_port=args.local_api_port, signing_key=args.signing_key, out=args.out,
-        sysid=args.sysid, world=args.world, extra_autopilot_args=controller_args(args),
+        sysid=args.sysid, world=args.world, extra_autopilot_args=controller_args(args), plant=args.plant,
     )  # fmt: skip
     try:
         serve(opts)
@@ -222,7 +258,7 @@ def _demo(args: argparse.Namespace) -> int:
                        duration_s=args.duration_s, servo_link=args.servo_link,
                        can_bus=args.can_bus, via_ground=not args.autostart, world=args.world,
                        extra_autopilot_args=(("--gains", args.gains) if args.gains else ())
-                       + controller_args(args))  # fmt: skip
+                       + controller_args(args), extra_plant_args=("--plant", args.plant))  # fmt: skip
     try:
         summary = run_demo(opts)
     except DemoError as exc:
@@ -319,6 +355,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--hold-until-armed", action="store_true",
                    help="in-air start: do not step until the autopilot arms")
     r.add_argument("--world", default=None, metavar="FILE|PRESET", help=WORLD_HELP)
+    r.add_argument("--plant", default="paper", metavar="paper|gavrilets|FILE", help=PLANT_HELP)
     r.add_argument("--home", default=f"{HOME.lat_deg},{HOME.lon_deg},{HOME.alt_amsl_m}",
                    help="lat,lon,alt the GPS reports about (give heli-autopilot the same --home)")
     r.add_argument("-v", "--verbose", action="store_true")
@@ -342,6 +379,7 @@ def build_parser() -> argparse.ArgumentParser:
     u.add_argument("--signing-key", default=None)
     u.add_argument("--out", default=None, help="autopilot writes run.csv/summary/tlog here on exit")
     u.add_argument("--world", default=None, metavar="FILE|PRESET", help=WORLD_HELP)
+    u.add_argument("--plant", default="paper", metavar="paper|gavrilets|FILE", help=PLANT_HELP)
     add_controller_args(u)
     u.set_defaults(func=_up)
 
@@ -356,6 +394,7 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--can-bus", default=None, help="python-can bus spec for --servo-link can")
     d.add_argument("--out", required=True)
     d.add_argument("--world", default=None, metavar="FILE|PRESET", help=WORLD_HELP)
+    d.add_argument("--plant", default="paper", metavar="paper|gavrilets|FILE", help=PLANT_HELP)
     d.add_argument("--gains", default=None, metavar="FILE", help=GAINS_HELP)
     add_controller_args(d)
     d.set_defaults(func=_demo)
@@ -380,6 +419,14 @@ def build_parser() -> argparse.ArgumentParser:
     k.add_argument("--workers", type=arg.count, default=None, help="embedded cluster size (default: cores)")
     k.add_argument("--quiet", action="store_true")
     k.set_defaults(func=_compare)
+
+    tr = sub.add_parser("trim", help="trim (hover, level flight) and the linearised model's modes")
+    tr.add_argument("--plant", default="paper", metavar="paper|gavrilets|FILE", help=PLANT_HELP)
+    tr.add_argument("--speed-m-s", type=float, action="append", default=None,
+                    help="level-flight airspeed (repeat for several; default: hover)")
+    tr.add_argument("--scenario", default="paper", help="the design airframe (the paper plant's)")
+    tr.add_argument("--json", action="store_true", help="trims and modes as JSON")
+    tr.set_defaults(func=_trim)
 
     c = sub.add_parser("campaign", help="fly a campaign of flights in-process on Dask; Parquet, figures")
     c.add_argument("file", help="campaign TOML, or a name in configs/campaigns/ (robustness, ...)")

@@ -37,6 +37,7 @@ from autopilot.metrics import FlightRecord
 from autopilot.pid.gains import PidGains
 from autopilot.scenario import Scenario
 from heli_common.config import CONFIG_DIR, ConfigError, read_toml, resolve
+from heli_common.plant_model import PlantModel
 from heli_common.state import PSI
 from heli_common.world import World
 from heli_sitl.campaign import engine
@@ -46,7 +47,7 @@ from heli_sitl.campaign.settings import canonical
 from heli_sitl.campaign.spec import CampaignSpec, load_campaign
 from heli_sitl.closed_loop import SimOptions, simulate
 
-TOP_KEYS = ("name", "scenario", "worlds", "campaigns", "contender")
+TOP_KEYS = ("name", "scenario", "plant", "worlds", "campaigns", "contender")
 CONTENDER_KEYS = ("label", "controller", "gains", "pid_gains", "feedforward")
 FLIGHT_METRICS = (
     "rms_0_m",
@@ -84,6 +85,7 @@ class CompareSpec:
     worlds: tuple[str, ...] = ()
     campaigns: tuple[str, ...] = ()
     source: str = ""
+    plant: str = "paper"  # every flight's plant: paper, gavrilets or a plant file
 
 
 def load_compare(path: str | Path = "compare.toml") -> CompareSpec:
@@ -129,7 +131,9 @@ def load_compare(path: str | Path = "compare.toml") -> CompareSpec:
         lists["worlds"],
         lists["campaigns"],
         src,
+        str(t.get("plant", "paper")),
     )
+    PlantModel.load(spec.plant)
     for c in spec.contenders:  # every file loads before anything flies
         scenario_for(spec.scenario, c)
         if c.pid_gains:
@@ -170,6 +174,7 @@ def fly(
         estimator=estimator_for(world),
         controller=c.controller,
         pid_gains=PidGains.load(c.pid_gains) if c.pid_gains else None,
+        plant=PlantModel.load(spec.plant),
     )
     rec = simulate(sc, opts)
     m = metrics(rec, CampaignSpec(name="compare", metrics=FLIGHT_METRICS))
@@ -180,10 +185,11 @@ def fly(
     return m, rec
 
 
-def campaign_spec(name: str, c: Contender, samples: int | None) -> CampaignSpec:
+def campaign_spec(name: str, c: Contender, samples: int | None, plant: str = "paper") -> CampaignSpec:
     spec = load_campaign(name)
     spec = dataclasses.replace(
         spec,
+        plant=plant,
         controller=c.controller,
         gains=c.gains or spec.gains,
         pid_gains=c.pid_gains,
@@ -545,7 +551,7 @@ def run_compare(
                 name = Path(source).stem  # a name in configs/campaigns/, or a file
                 tables[name], camp[name] = {}, {}
                 for c in spec.contenders:
-                    cs = campaign_spec(source, c, samples)
+                    cs = campaign_spec(source, c, samples, spec.plant)
                     specs[name] = cs
                     d = work / f"{name}-{c.slug}"
                     say(f"campaign {name}, {c.label}: {d}")

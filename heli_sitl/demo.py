@@ -141,6 +141,7 @@ class UpOptions:
     sysid: int = 1
     world: str | None = None
     extra_autopilot_args: tuple[str, ...] = ()  # e.g. the controller: ("--controller", "pid")
+    plant: str = "paper"  # the plant model (--plant)
 
 
 def up_commands(opts: UpOptions) -> list[tuple[str, list[str]]]:
@@ -153,7 +154,7 @@ def up_commands(opts: UpOptions) -> list[tuple[str, list[str]]]:
         "--port", str(pp), "--autopilot-port", str(ap), "--timeout-s", "2",
     ] + (["--hold-until-armed"] if opts.in_air else ["--on-ground"]) + (
         ["--world", opts.world] if opts.world else []
-    )  # fmt: skip
+    ) + ["--plant", opts.plant]  # fmt: skip
     autopilot = _cmd("autopilot.cli") + [
         "--mode", opts.mode, "--rate-hz", str(opts.rate_hz), "--scenario", opts.scenario,
         "--port", str(ap), "--plant-port", str(pp),

@@ -85,6 +85,8 @@ import control as ct
 import numpy as np
 
 from autopilot.tlc.gains import Gains, LoopGains
+from heli_common.airframe import Airframe
+from heli_common.plant_model import RotorPlant
 from heli_common.world import Servos
 
 LOOP_CHANNELS: dict[int, tuple[str, str, str]] = {
@@ -142,6 +144,44 @@ SERVO_MODELS: dict[str, ServoModel] = {
     "default": DEFAULT_SERVOS,
     "sloppy": SLOPPY_SERVOS,
 }
+
+
+@dataclass(frozen=True)
+class RotorFlapping:
+    """The rotor plant's flapping in loop 4 (docs/rotor-plant.md, "Margins"): the TLC's torque
+    command ``tau_c`` becomes a cyclic ``tau_c / K_d`` (the design model's moment per cyclic
+    radian, ``K_d = m g h_mr``); the tip-path plane follows it with the linkage gain ``A`` and
+    the time constant ``tau``, lagging the body rate; the hub spring and the thrust give
+    ``K = K_beta + m g h_mr`` per radian of flapping. Roll and pitch rates then answer::
+
+        q = (K A / K_d) tau_c / (J s (tau s + 1) + K tau)
+
+    against the design's ``tau_c / (J s)``: loop 4's ``P_4`` gains the factor
+    ``(K A / K_d) s / (tau s^2 + s + K tau / J)``. Yaw has no flapping."""
+
+    tau_s: float
+    lon_gain: float
+    lat_gain: float
+    k_n_m_per_rad: float  # K_beta + m g h_mr
+    k_design_n_m_per_rad: float  # m g h_mr
+    ixx_kg_m2: float
+    iyy_kg_m2: float
+
+    @classmethod
+    def from_plant(cls, rp: RotorPlant, design: Airframe) -> RotorFlapping:
+        b = design.body
+        kd = b.mass_kg * b.gravity_m_s2 * b.main_hub_above_cg_m
+        pb = rp.body
+        k = rp.flapping.hub_stiffness_n_m_per_rad + pb.mass_kg * pb.gravity_m_s2 * pb.main_hub_above_cg_m
+        return cls(rp.tau_e_s(), rp.flapping.lon_gain_rad_per_rad, rp.flapping.lat_gain_rad_per_rad, k, kd,
+                   pb.ixx_kg_m2, pb.iyy_kg_m2)  # fmt: skip
+
+    def factor(self, ch: int, s: Any) -> _Ratio:
+        """The factor of loop 4's plant on channel ``ch`` (0 roll, 1 pitch)."""
+        gain = self.lat_gain if ch == 0 else self.lon_gain
+        j = self.ixx_kg_m2 if ch == 0 else self.iyy_kg_m2
+        g = self.k_n_m_per_rad * gain / self.k_design_n_m_per_rad
+        return _Ratio(s * g, s * s * self.tau_s + s + self.k_n_m_per_rad * self.tau_s / j)
 
 
 @dataclass(frozen=True)
@@ -217,22 +257,32 @@ def _close(p: _Ratio, lg: LoopGains, ch: int, d: _Ratio, s: Any, feedforward: bo
     L = Nk Np / (s^2 Dp); T = Np (s^2 Nd + Nk Dd) / (Dd (s^2 Dp + Np Nk))."""
     zeta, w = lg.zeta[ch], lg.omega_rad_s[ch]
     nk = s * (2.0 * zeta * w) + w * w  # K = nk / s
-    char = s * s * p.den + p.num * nk
-    loop = _Ratio(nk * p.num, s * s * p.den)
+    num, s_int = p.num, s  # the plant's integrator 1/s ...
+    if isinstance(num, np.poly1d) and num.coeffs.size > 1 and num.coeffs[-1] == 0.0:
+        # ... cancelled by a plant zero at the origin (the rotor's flapping makes loop 4 a
+        # rate-command plant): divide it out, or the polynomials keep a spurious pole at 0
+        num, s_int = np.poly1d(num.coeffs[:-1]), 1.0
+    char = s * s_int * p.den + num * nk
+    loop = _Ratio(nk * num, s * s_int * p.den)
     if feedforward:
-        closed = _Ratio(p.num * (s * s * d.num + nk * d.den), d.den * char)
+        closed = _Ratio(num * (s * s * d.num + nk * d.den), d.den * char)
     else:
-        closed = _Ratio(p.num * nk, char)
+        closed = _Ratio(num * nk, char)
     return _Stage(loop, closed, char)
 
 
 def _cascade(
-    gains: Gains, s: Any, actuator: _Ratio, d: _Ratio, feedforward: bool
+    gains: Gains, s: Any, actuator: _Ratio, d: _Ratio, feedforward: bool, rotor: RotorFlapping | None = None
 ) -> dict[tuple[int, int], _Stage]:
-    """Every (loop, channel) stage, loop 4 first, each outer loop around the closed inner one."""
+    """Every (loop, channel) stage, loop 4 first, each outer loop around the closed inner one;
+    with ``rotor``, loop 4's roll and pitch plants carry its flapping."""
     stages: dict[tuple[int, int], _Stage] = {}
     for ch in range(3):
-        stages[4, ch] = _close(actuator, gains.loop4_attitude_dynamics, ch, d, s, feedforward)
+        p4 = actuator
+        if rotor is not None and ch < 2:
+            f = rotor.factor(ch, s)
+            p4 = _Ratio(actuator.num * f.num, actuator.den * f.den)
+        stages[4, ch] = _close(p4, gains.loop4_attitude_dynamics, ch, d, s, feedforward)
     for ch in range(3):
         stages[3, ch] = _close(stages[4, ch].closed, gains.loop3_attitude_kinematics, ch, d, s, feedforward)
     for ch, through in enumerate(_LOOP2_THROUGH):
@@ -254,20 +304,21 @@ def _actuator_poly(servo: ServoModel, order: int) -> _Ratio:
 
 
 def _polynomial_stages(
-    gains: Gains, servo: ServoModel, feedforward: bool, order: int
+    gains: Gains, servo: ServoModel, feedforward: bool, order: int, rotor: RotorFlapping | None = None
 ) -> dict[tuple[int, int], _Stage]:
     s = np.poly1d([1.0, 0.0])
-    return _cascade(gains, s, _actuator_poly(servo, order), _differentiator_poly(gains), feedforward)
+    return _cascade(gains, s, _actuator_poly(servo, order), _differentiator_poly(gains), feedforward, rotor)
 
 
 def _frequency_stages(
-    gains: Gains, servo: ServoModel, feedforward: bool, omega: np.ndarray[Any, np.dtype[np.float64]]
-) -> dict[tuple[int, int], _Stage]:
+    gains: Gains, servo: ServoModel, feedforward: bool, omega: np.ndarray[Any, np.dtype[np.float64]],
+    rotor: RotorFlapping | None = None,
+) -> dict[tuple[int, int], _Stage]:  # fmt: skip
     s = 1j * omega
     actuator = _Ratio(np.exp(-s * servo.effective_delay_s), 1.0 + servo.tau_s * s)
     dp = _differentiator_poly(gains)
     d = _Ratio(dp.num(s), dp.den(s))
-    return _cascade(gains, s, actuator, d, feedforward)
+    return _cascade(gains, s, actuator, d, feedforward, rotor)
 
 
 def _hurwitz(p: np.poly1d) -> bool:
@@ -352,6 +403,7 @@ def loop_margins(
     feedforward: bool = True,
     pade_order: int = PADE_ORDER,
     loops: Iterable[tuple[int, str]] | None = None,
+    rotor: RotorFlapping | None = None,
 ) -> MarginReport:
     """Margins of loops 1-4, every channel (or only ``loops``, (loop, channel) pairs), for
     ``gains`` flying through ``servo``.
@@ -364,8 +416,8 @@ def loop_margins(
     wanted = (
         [(k, c) for k in (1, 2, 3, 4) for c in LOOP_CHANNELS[k]] if loops is None else list(loops)
     )
-    poly = _polynomial_stages(gains, servo, feedforward, pade_order)
-    freq = _frequency_stages(gains, servo, feedforward, OMEGA_GRID) if method == "exact" else None
+    poly = _polynomial_stages(gains, servo, feedforward, pade_order, rotor)
+    freq = _frequency_stages(gains, servo, feedforward, OMEGA_GRID, rotor) if method == "exact" else None
     out: list[LoopMargins] = []
     for loop, name in wanted:
         ch = LOOP_CHANNELS[loop].index(name)

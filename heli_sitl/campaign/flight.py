@@ -93,7 +93,7 @@ def fly(
         f = apply(base, settings)
         row["seed"] = f.world.seed
         opts = SimOptions(world=f.world, estimator=f.estimator, duration_s=spec.duration_s,
-                          controller=f.controller, pid_gains=f.pid_gains)  # fmt: skip
+                          controller=f.controller, pid_gains=f.pid_gains, plant=f.plant)  # fmt: skip
         rec = simulate(f.scenario, opts)
         row["wall_s"] = rec.wall_s
         row.update(metrics(rec, spec))

@@ -22,6 +22,7 @@ from autopilot.estimation.config import EstimatorConfig
 from autopilot.pid.gains import PidGains
 from autopilot.scenario import Scenario
 from heli_common.config import ConfigError
+from heli_common.plant_model import PlantModel
 from heli_common.world import World
 from heli_sitl.campaign import engine, report
 from heli_sitl.campaign.flight import METRIC_DOC
@@ -39,7 +40,7 @@ def base_flight(spec: CampaignSpec) -> Flight:
     world = World.load(spec.world) if spec.world else World()
     est = EstimatorConfig.load(spec.estimator) if spec.estimator else EstimatorConfig()
     pid = PidGains.load(spec.pid_gains) if spec.pid_gains else None
-    return Flight(sc, world, est, spec.controller, pid)
+    return Flight(sc, world, est, spec.controller, pid, PlantModel.load(spec.plant))
 
 
 def _probes(v: Vary) -> list[float]:

@@ -36,6 +36,7 @@ from autopilot.estimation.config import EstimatorConfig
 from autopilot.pid.gains import PidGains, default_pid_gains
 from autopilot.scenario import Scenario
 from heli_common.config import ConfigError, as_table, build
+from heli_common.plant_model import PlantModel
 from heli_common.scenario_file import InitialState
 from heli_common.world import World
 
@@ -66,6 +67,7 @@ class Flight:
     estimator: EstimatorConfig
     controller: str = "tlc"  # or "pid"
     pid_gains: PidGains | None = None  # None: configs/gains_pid.toml
+    plant: PlantModel = PlantModel("paper")
 
 
 def canonical(key: str) -> str:
@@ -161,7 +163,7 @@ def apply(base: Flight, values: dict[str, float]) -> Flight:
         sc = dataclasses.replace(sc, run=_rebuilt(sc.run, by_root["run"]))
     if "initial" in by_root:
         sc = dataclasses.replace(sc, initial=_initial(sc, by_root["initial"]))
-    return Flight(sc, world, est, base.controller, pid)
+    return Flight(sc, world, est, base.controller, pid, base.plant)
 
 
 def _initial(sc: Scenario, values: dict[str, float]) -> InitialState:

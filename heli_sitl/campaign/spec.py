@@ -41,6 +41,7 @@ TOP_KEYS = (
     "feedforward",
     "world",
     "estimator",
+    "plant",
     "samples",
     "sampler",
     "seed",
@@ -89,6 +90,7 @@ class CampaignSpec:
     controller: str = "tlc"  # or "pid": the cascaded PID baseline
     pid_gains: str = ""  # "": configs/gains_pid.toml
     feedforward: str = ""  # the TLC's: "pseudo" or "exact" ("": the scenario's)
+    plant: str = "paper"  # paper, gavrilets or a plant file (docs/rotor-plant.md)
     world: str = ""
     estimator: str = ""
     samples: int = 100
@@ -189,8 +191,9 @@ def parse(table: dict[str, Any], source: str) -> CampaignSpec:
             raise _unknown(source, k, TOP_KEYS)
     name = table.get("name", Path(source).stem)
     strings = {}
-    defaults = {"name": name, "scenario": "paper", "controller": "tlc"}
-    for k in ("name", "scenario", "gains", "controller", "pid_gains", "feedforward", "world", "estimator"):
+    defaults = {"name": name, "scenario": "paper", "controller": "tlc", "plant": "paper"}
+    for k in ("name", "scenario", "gains", "controller", "pid_gains", "feedforward", "world", "estimator",
+              "plant"):  # fmt: skip
         v = table.get(k, defaults.get(k, ""))
         if not isinstance(v, str):
             raise _fail(f"{source}: {k}", f"expected a string, got {v!r}")
@@ -248,6 +251,7 @@ def parse(table: dict[str, Any], source: str) -> CampaignSpec:
         feedforward=strings["feedforward"],
         world=strings["world"],
         estimator=strings["estimator"],
+        plant=strings["plant"],
         samples=samples,
         sampler=sampler,
         seed=seed,

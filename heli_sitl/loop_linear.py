@@ -1,0 +1,282 @@
+"""The whole closed loop linearised numerically: one control tick's Jacobian, its
+eigenvalues, and disk margins at every loop break point.
+
+One tick of the bench's own loop (the controller kernel, the pitches held, the plant's
+compiled step with its servos and rotor) is a map ``z_k+1 = F(z_k)`` of the plant's state,
+the rotor plant's states, the servos' states and the controller's state. About a hover
+equilibrium ``z* = F(z*)`` its Jacobian (central differences) gives the closed-loop
+eigenvalues (stable iff every ``|lambda| < 1``), and its blocks (controller: measured state ->
+pitches; plant: pitches -> state) the discrete-time loop transfer at each break point: every
+pitch channel at the plant's input, and every measured state the controller reads.
+python-control's :func:`control.disk_margins` gives each break point's balanced disk margin
+(loop-at-a-time: that channel opened, every other closed) and the multivariable margin at
+the plant input. Nothing is approximated but the linearisation itself: the rotor, the thrust
+tilt, the servos' delay and lag, the sampling and the differentiators are all in it.
+
+Servos: delay (whole control periods, at most one) and lag linearise exactly; the rate limit,
+quantum and dead band are small-signal inactive and left out (the flights keep them).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import control as ct
+import numpy as np
+from scipy.optimize import least_squares
+
+from autopilot.control import N_DIAG, KernelController
+from autopilot.reference import N_REF
+from heli_common.airframe import Airframe
+from heli_common.plant_model import PlantModel
+from heli_common.state import N_PITCH, N_STATE, PITCH_NAMES, FloatArray
+from heli_common.world import Servos, World
+from heli_sitl.plant.model import accept_pitches
+from heli_sitl.plant.rotor import N_ROTOR
+from heli_sitl.plant.trim import STATE_NAMES, hover_rotor_state, trim
+from heli_sitl.plant.world.model import WS_ROTOR, WorldModel, world_plant_step
+
+HOVER_ALT_M = 20.0
+OMEGA_RAD_S = np.logspace(-2.0, math.log10(math.pi * 100.0) - 1e-3, 600)
+
+
+@dataclass(frozen=True)
+class BreakPoint:
+    """The balanced disk margin of one loop break point (loop-at-a-time)."""
+
+    name: str  # "input eps" (a pitch at the plant's input) or "state q_rad_s" (a measurement)
+    disk_margin: float  # alpha_max: the disk's size; 0 when the loop is unstable
+    gain_margin_db: float  # the disk's gain margin (+/-) [dB]
+    phase_margin_deg: float  # the disk's phase margin (+/-) [deg]
+
+
+@dataclass(frozen=True)
+class LoopLinearization:
+    """One tick's Jacobian about hover, its eigenvalues and the disk margins."""
+
+    plant: str
+    controller: str
+    servos: str
+    eigenvalues: FloatArray  # complex, the discrete-time map's
+    spectral_radius: float  # max |lambda|; < 1 is stable
+    dominant_rad_s: complex  # the continuous equivalent ln(lambda)/dt of the largest |lambda|
+    break_points: tuple[BreakPoint, ...]
+    input_multiloop: BreakPoint  # all four pitches perturbed at once (python-control's MIMO margin)
+
+    @property
+    def stable(self) -> bool:
+        return self.spectral_radius < 1.0
+
+    def worst(self) -> BreakPoint:
+        return min(self.break_points, key=lambda b: b.disk_margin)
+
+
+@dataclass
+class TickMap:
+    """``F(z)``: one control tick of ``controller`` on the plant, about a held reference."""
+
+    controller: KernelController[Any]
+    world: WorldModel
+    ref: FloatArray
+    lo: FloatArray
+    hi: FloatArray
+    n_servo: int
+
+    @property
+    def sizes(self) -> tuple[int, int, int, int]:
+        return N_STATE, N_ROTOR if self.world.rotor.on else 0, self.n_servo, self.controller.n_state
+
+    def split(self, z: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        a, b, c, _ = self.sizes
+        return z[:a], z[a : a + b], z[a + b : a + b + c], z[a + b + c :]
+
+    def plant_step(self, x: FloatArray, r: FloatArray, s: FloatArray, held: FloatArray) -> FloatArray:
+        w = self.world
+        ws = w.ws.copy()
+        if r.size:
+            ws[WS_ROTOR : WS_ROTOR + N_ROTOR] = r
+        servo_s = w.servo_s.copy()
+        servo_s[1 : 1 + s.size] = s
+        dt = self.controller.dt_s
+        y, _ = world_plant_step(0.0, x, held, w.constants, w.air, dt, 1, False, w.wp, ws, w.servo_p, servo_s,
+                                w.dryden, w.rotor)  # fmt: skip
+        rr = ws[WS_ROTOR : WS_ROTOR + N_ROTOR] if r.size else r
+        return np.concatenate([y, rr, servo_s[1 : 1 + s.size]])
+
+    def control(self, c: FloatArray, x: FloatArray) -> tuple[FloatArray, FloatArray]:
+        st = c.copy()
+        out = np.empty(N_PITCH)
+        k = self.controller
+        k.kernel()(k.constants, st, x, self.ref, False, out, np.zeros(N_DIAG))
+        held = np.empty(N_PITCH)
+        accept_pitches(out, self.lo, self.hi, held)
+        return held, st
+
+    def __call__(self, z: FloatArray) -> FloatArray:
+        x, r, s, c = self.split(z)
+        held, st = self.control(c, x)
+        return np.concatenate([self.plant_step(x, r, s, held), st])
+
+
+def _jacobian(f: Any, z0: FloatArray, rel: float = 1e-7) -> FloatArray:
+    y0 = f(z0)
+    jac = np.empty((y0.size, z0.size))
+    for j in range(z0.size):
+        h = rel * max(1.0, abs(z0[j]))
+        zp, zm = z0.copy(), z0.copy()
+        zp[j] += h
+        zm[j] -= h
+        jac[:, j] = (f(zp) - f(zm)) / (2.0 * h)
+    return jac
+
+
+def build_tick_map(
+    controller: KernelController[Any], model: PlantModel, design: Airframe, servos: Servos
+) -> tuple[TickMap, FloatArray]:
+    """The tick map at a hover of the plant's own trim, and a start for its fixed point."""
+    if any(d > controller.dt_s * (1 + 1e-9) for d in servos.delay_s):
+        raise ValueError("the linearised loop takes servo delays of at most one control period")
+    sv = dataclasses.replace(servos, rate_rad_s=(0.0,) * 4, quantum_rad=(0.0,) * 4, deadband_rad=(0.0,) * 4)
+    tr = trim(model, design, altitude_m=HOVER_ALT_M)
+    x0 = tr.x[:N_STATE].copy()
+    r0 = np.array(hover_rotor_state(model, design)) if model.rotor is not None else None
+    world = WorldModel.build(World(servos=sv), design, x0, model.rotor, r0)
+    limits = np.array(design.limits.as_tuple())
+    world.prepare(controller.dt_s, tr.u, limits)
+    ref = np.zeros(N_REF)
+    ref[0:3] = x0[0:3]
+    ref[3:] = 0.0
+    n_servo = world.servo_s.size - 1 if sv.on else 0  # positions, targets, delay line
+    tm = TickMap(controller, world, ref, limits[:, 0], limits[:, 1], n_servo)
+    ctrl = controller.state.copy()
+    controller.kernel()(controller.constants, ctrl, x0, ref, False, np.empty(N_PITCH), np.zeros(N_DIAG))
+    z0 = np.concatenate([x0, [] if r0 is None else r0, world.servo_s[1 : 1 + n_servo], ctrl])
+    return tm, z0
+
+
+def fixed_point(tm: TickMap, z0: FloatArray) -> FloatArray:
+    """``z* = F(z*)``: flown to rest first (a stable loop settles), then Newton-polished."""
+    z = z0.copy()
+    for _ in range(3000):
+        z_new = tm(z)
+        if not np.all(np.isfinite(z_new)) or np.max(np.abs(z_new[:N_STATE] - z0[:N_STATE])) > 5.0:
+            z = z0.copy()  # an unstable loop leaves: solve from the start instead
+            break
+        z = z_new
+    sol = least_squares(lambda v: tm(v) - v, z, xtol=1e-14, ftol=1e-14, gtol=1e-14, max_nfev=200)
+    return np.asarray(sol.x)
+
+
+def _ss(a: FloatArray, b: FloatArray, c: FloatArray, d: FloatArray, dt: float) -> ct.StateSpace:
+    return ct.ss(a, b, c, d, dt)
+
+
+def _disk(name: str, loop: ct.StateSpace, stable: bool) -> BreakPoint:
+    if not stable:
+        return BreakPoint(name, 0.0, 0.0, 0.0)
+    dm, dgm, dpm = ct.disk_margins(loop, OMEGA_RAD_S)
+    return BreakPoint(name, float(dm), float(20.0 * np.log10(dgm)) if np.isfinite(dgm) else math.inf,
+                      float(dpm))  # fmt: skip
+
+
+def linearize_loop(
+    controller: KernelController[Any], model: PlantModel, design: Airframe, servos: Servos,
+    servos_name: str = "",
+) -> LoopLinearization:  # fmt: skip
+    """The closed loop of ``controller`` on ``model`` at hover, with ``servos`` (delay and lag)."""
+    tm, z0 = build_tick_map(controller, model, design, servos)
+    z = fixed_point(tm, z0)
+    jac = _jacobian(tm, z)
+    # states the tick only holds (z_i+ = z_i and nothing else: the yaw command of a hover
+    # reference, whose every value is an equilibrium) are references, not dynamics
+    eye = np.eye(jac.shape[0])
+    keep = np.array([not np.allclose(jac[i], eye[i], rtol=0.0, atol=1e-10) for i in range(jac.shape[0])])
+    lam = np.linalg.eigvals(jac[np.ix_(keep, keep)])
+    k = int(np.argmax(np.abs(lam)))
+    dt = controller.dt_s
+    dominant = complex(np.log(complex(lam[k])) / dt)
+    # the blocks: plant p = (x, rotor, servos) with input u; controller c with input x
+    nx, nr, ns, _nc = tm.sizes
+    npl = nx + nr + ns
+    x, _r, _s, c = tm.split(z)
+    held, _ = tm.control(c, x)
+
+    def plant_of(v: FloatArray) -> FloatArray:
+        return tm.plant_step(v[:nx], v[nx : nx + nr], v[nx + nr : npl], v[npl:])
+
+    jp = _jacobian(plant_of, np.concatenate([z[:npl], held]))
+    ap, bp = jp[:, :npl], jp[:, npl:]
+
+    def ctrl_of(v: FloatArray) -> FloatArray:
+        u, st = tm.control(v[nx:], v[:nx])
+        return np.concatenate([u, st])
+
+    jc = _jacobian(ctrl_of, np.concatenate([x, c]))
+    kc = keep[npl:]
+    dc, cc = jc[:N_PITCH, :nx], jc[:N_PITCH, nx:][:, kc]
+    bc, ac = jc[N_PITCH:, :nx][kc], jc[N_PITCH:, nx:][np.ix_(kc, kc)]
+    cp = np.zeros((nx, npl))
+    cp[:, :nx] = np.eye(nx)
+    # the controller as a system from measured x to pitches u, the plant from u to x
+    ctl = _ss(ac, bc, cc, dc, dt)
+    pl = _ss(ap, bp, cp, np.zeros((nx, N_PITCH)), dt)
+    stable = bool(np.max(np.abs(lam)) < 1.0)
+    points = []
+    loop_in = -(ctl * pl)  # broken at the plant's input: u -> x -> u, negative feedback convention
+    loop_out = -(pl * ctl)  # broken at the measurements: x -> u -> x
+    for i, nm in enumerate(PITCH_NAMES):
+        points.append(_disk(f"input {nm}", _loop_at_a_time(loop_in, i), stable))
+    for j, nm in enumerate(STATE_NAMES):
+        points.append(_disk(f"state {nm}", _loop_at_a_time(loop_out, j), stable))
+    multi = _multiloop_disk("input all four", loop_in, stable)
+    return LoopLinearization(model.kind, controller.kind, servos_name, lam, float(np.max(np.abs(lam))),
+                             dominant, tuple(points), multi)  # fmt: skip
+
+
+def _multiloop_disk(name: str, loop: ct.StateSpace, stable: bool) -> BreakPoint:
+    """All channels perturbed at once by one full complex block (no slycot: the unstructured
+    bound of the balanced disk margin, ``1 / max_w sigma_max((I - L)(I + L)^-1 / 2)``, a
+    conservative one next to the diagonal structure's mu)."""
+    if not stable:
+        return BreakPoint(name, 0.0, 0.0, 0.0)
+    resp = loop.frequency_response(OMEGA_RAD_S)
+    fr = np.asarray(resp.complex)  # (n, n, w)
+    n = fr.shape[0]
+    worst = 0.0
+    for k in range(fr.shape[2]):
+        lk = fr[:, :, k]
+        s0 = 0.5 * (np.eye(n) - lk) @ np.linalg.inv(np.eye(n) + lk)
+        worst = max(worst, float(np.linalg.norm(s0, 2)))
+    return _from_alpha(name, 1.0 / worst)
+
+
+def _from_alpha(name: str, alpha: float) -> BreakPoint:
+    """A balanced disk of size ``alpha``: gain (1 + a/2)/(1 - a/2), phase 2 atan(a/2)."""
+    if alpha >= 2.0:
+        return BreakPoint(name, alpha, math.inf, 90.0)
+    return BreakPoint(name, alpha, float(20.0 * math.log10((1 + alpha / 2) / (1 - alpha / 2))),
+                      float(math.degrees(2.0 * math.atan(alpha / 2))))  # fmt: skip
+
+
+def _loop_at_a_time(loop: ct.StateSpace, i: int) -> ct.StateSpace:
+    """Channel ``i`` of a square loop opened, every other closed: the SISO loop ``w -> y_i``
+    with ``u = w e_i - (y with its i-th entry zeroed)`` (negative feedback everywhere)."""
+    n = loop.ninputs
+    others = np.eye(n)
+    others[i, i] = 0.0
+    # u = e_i w - others @ y ; y = L u  =>  the closure of L with feedback `others`
+    closed = ct.feedback(loop, ct.ss([], [], [], others, loop.dt), sign=-1)
+    return closed[i, i]
+
+
+def servo_model(name: str) -> tuple[str, Servos]:
+    """A world preset's servos (``ideal``: none)."""
+    if name == "ideal":
+        return "ideal", Servos()
+    return name, World.load(name).servos
+
+
+__all__ = ["BreakPoint", "LoopLinearization", "TickMap", "linearize_loop", "servo_model"]
