@@ -168,7 +168,9 @@ class FlightRecord:
     def _rotor_summary(self) -> dict[str, Any]:
         """The rotor plant: rotor speed range and largest droop, flapping and throttle extremes."""
         assert self.rotor is not None
-        r = self.rotor[np.all(np.isfinite(self.rotor), axis=1)]
+        # the governor's integral is the plant's own (NaN in a process run's record)
+        cols = [ROTOR_RECORD.index(k) for k in ("a1_rad", "b1_rad", "omega_rad_s", "throttle")]
+        r = self.rotor[np.all(np.isfinite(self.rotor[:, cols]), axis=1)]
         if r.size == 0:
             return {}
         om = r[:, ROTOR_RECORD.index("omega_rad_s")]
@@ -239,6 +241,15 @@ class FlightRecord:
         s = self.summary()
         path.write_text(json.dumps(s, indent=2) + "\n")
         return s
+
+
+def rotor_record(truth: FloatArray) -> FloatArray:
+    """The rotor columns of :data:`ROTOR_RECORD` from what a plant process reports per state
+    (a1, b1, rotor speed, throttle: the governor's integral is the plant's own, NaN here)."""
+    out = np.full((truth.shape[0], len(ROTOR_RECORD)), np.nan)
+    for i, k in enumerate(("a1_rad", "b1_rad", "omega_rad_s", "throttle")):
+        out[:, ROTOR_RECORD.index(k)] = truth[:, i]
+    return out
 
 
 def format_rows(rows: FloatArray) -> str:

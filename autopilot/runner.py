@@ -28,10 +28,12 @@ from autopilot.estimation.kf import N_EST_LOG
 from autopilot.estimation.onboard import OnboardEstimator
 from autopilot.flight.manager import FlightManager
 from autopilot.flight.modes import Mode
-from autopilot.metrics import CSV_HEADER, FlightRecord, write_rows
+from autopilot.metrics import CSV_HEADER, FlightRecord, rotor_record, write_rows
+from autopilot.reference import N_REF
+from heli_common.layout import Layout
 from heli_common.links import ServoOutput, StateSource
-from heli_common.mavlink.sim_protocol import StateSample
-from heli_common.state import N_PITCH, PHI, PSI, THETA, FloatArray
+from heli_common.mavlink.sim_protocol import N_ROTOR_TRUTH, StateSample
+from heli_common.state import N_PITCH, N_STATE, PHI, PSI, THETA, FloatArray
 
 log = logging.getLogger("autopilot.runner")
 LOCKSTEP_SPIN_S = 0.002  # poll this long before sleeping (see MavlinkUdp.wait)
@@ -122,12 +124,15 @@ class Recorder:
     tick: 22 ms at 16384 rows, four skipped ticks at 400 Hz)."""
 
     # t, state, reference, pitches, diagnostics, trajectory time, landing flag, the
-    # world's truth when the plant flies one (air NWU, servo positions; NaN otherwise), and
-    # flying from sensors the estimate and the estimator's log (NaN otherwise)
-    _TRAJ_T = 22 + N_PITCH + N_DIAG
-    _AIR = _TRAJ_T + 2
-    _EST = _AIR + 3 + N_PITCH
-    WIDTH = _EST + 12 + N_EST_LOG
+    # world's truth when the plant flies one (air NWU, servo positions; NaN otherwise),
+    # flying from sensors the estimate and the estimator's log (NaN otherwise), and the
+    # rotor plant's truth (a1, b1, rotor speed, throttle; NaN otherwise)
+    ROW = Layout(
+        "recorder row", ("t", 1), ("x", N_STATE), ("ref", N_REF), ("u", N_PITCH), ("diag", N_DIAG),
+        ("traj_t", 1), ("landing", 1), ("air", 3), ("servo", N_PITCH), ("x_hat", N_STATE),
+        ("est", N_EST_LOG), ("rotor", N_ROTOR_TRUTH),
+    )  # fmt: skip
+    WIDTH = ROW.end
 
     def __init__(self, capacity: int = 4096, stream_csv: Path | None = None, flush_every: int = 100) -> None:
         self._block = capacity
@@ -138,14 +143,14 @@ class Recorder:
         self.flush_every = flush_every
         self._flushed = 0
         self._psi_before: float | None = None
+        self._header_written = False
         self._fh: IO[str] | None = None
         self._csv: Any = None
         if stream_csv is not None:
             stream_csv.parent.mkdir(parents=True, exist_ok=True)
             self._fh = stream_csv.open("w", newline="")
             self._csv = csv.writer(self._fh)
-            self._csv.writerow(CSV_HEADER)
-            self._fh.flush()
+            self._header_written = False
 
     def flush_if_due(self) -> None:
         if self._fh is not None and self.n - self._flushed >= self.flush_every:
@@ -155,7 +160,11 @@ class Recorder:
         """Append the rows recorded since the last flush to the streamed run.csv."""
         if self._fh is None or self.n == self._flushed:
             return
-        rows = self.record(0.0, {}, start=self._flushed).rows(self._psi_before)
+        rec = self.record(0.0, {}, start=self._flushed)
+        if not self._header_written:  # the rotor plant's columns where its plant reports them
+            self._csv.writerow(rec.header)
+            self._header_written = True
+        rows = rec.rows(self._psi_before)
         write_rows(self._fh, rows)
         self._fh.flush()
         self._flushed = self.n
@@ -163,6 +172,9 @@ class Recorder:
 
     def close(self) -> None:
         if self._fh is not None:
+            if not self._header_written:  # nothing flown: the header alone
+                self._csv.writerow(CSV_HEADER)
+                self._header_written = True
             self.flush()
             self._fh.close()
             self._fh = None
@@ -177,19 +189,22 @@ class Recorder:
             self._blocks.append(np.empty((self._block, self.WIDTH)))
             i = 0
         row = self._blocks[-1][i]
-        row[0] = t
-        row[1:13] = x
-        row[13:22] = ref
-        row[22 : 22 + N_PITCH] = u
-        row[22 + N_PITCH : self._TRAJ_T] = diag
-        row[self._TRAJ_T] = traj_t
-        row[self._TRAJ_T + 1] = landing
+        c = _COLS
+        row[c["t"]] = t
+        row[c["x"]] = x
+        row[c["ref"]] = ref
+        row[c["u"]] = u
+        row[c["diag"]] = diag
+        row[c["traj_t"]] = traj_t
+        row[c["landing"]] = landing
         air = None if truth is None else truth.air_nwu_m_s
         servo = None if truth is None else truth.servo_rad
-        row[self._AIR : self._AIR + 3] = math.nan if air is None else air
-        row[self._AIR + 3 : self._EST] = math.nan if servo is None else servo
-        row[self._EST : self._EST + 12] = math.nan if x_hat is None else x_hat
-        row[self._EST + 12 :] = math.nan if est_row is None else est_row
+        rotor = None if truth is None else truth.rotor
+        row[c["air"]] = math.nan if air is None else air
+        row[c["servo"]] = math.nan if servo is None else servo
+        row[c["x_hat"]] = math.nan if x_hat is None else x_hat
+        row[c["est"]] = math.nan if est_row is None else est_row
+        row[c["rotor"]] = math.nan if rotor is None else rotor
         self.n += 1
 
     def rows_array(self, start: int = 0) -> FloatArray:
@@ -210,17 +225,21 @@ class Recorder:
         """The flight so far (from row ``start``); ``pitches`` replaces the commanded ones
         (e.g. the pitches a servo actually applied, one row per tick)."""
         b = self.rows_array(start)
-        u = b[:, 22 : 22 + N_PITCH].copy() if pitches is None else np.asarray(pitches, dtype=float)
+        c = _COLS
+        u = b[:, c["u"]].copy() if pitches is None else np.asarray(pitches, dtype=float)
         rec = FlightRecord.from_ticks(
-            b[:, 0].copy(), b[:, 1:13].copy(), b[:, 13:22].copy(), u, b[:, 22 + N_PITCH : self._TRAJ_T],
-            wall_s, extra, traj_t_s=b[:, self._TRAJ_T].copy(), landing=b[:, self._TRAJ_T + 1] != 0,
+            b[:, c["t"]].copy(), b[:, c["x"]].copy(), b[:, c["ref"]].copy(), u, b[:, c["diag"]], wall_s,
+            extra, traj_t_s=b[:, c["traj_t"]].copy(), landing=b[:, c["landing"]] != 0,
         )  # fmt: skip
-        air, servo = b[:, self._AIR : self._AIR + 3], b[:, self._AIR + 3 : self._EST]
+        air, servo = b[:, c["air"]], b[:, c["servo"]]
         if np.isfinite(air).any():
             rec = dataclasses.replace(rec, air_nwu_m_s=air.copy(), servo_rad=servo.copy())
-        x_hat = b[:, self._EST : self._EST + 12]
+        x_hat = b[:, c["x_hat"]]
         if np.isfinite(x_hat).any():
-            rec = dataclasses.replace(rec, x_hat=x_hat.copy(), est_log=b[:, self._EST + 12 :].copy())
+            rec = dataclasses.replace(rec, x_hat=x_hat.copy(), est_log=b[:, c["est"]].copy())
+        rotor = b[:, c["rotor"]]
+        if np.isfinite(rotor).any():
+            rec = dataclasses.replace(rec, rotor=rotor_record(rotor))
         return rec
 
 
@@ -468,3 +487,11 @@ class Runner:
             self.tick(t_s, latest.x, latest.t_us)
             self.stats.work_s.append(time.monotonic() - wake)
             k += 1
+
+
+# each block's columns of a row: an index for a single value, a slice for a vector
+_COLS: dict[str, Any] = {
+    name: Recorder.ROW.offset(name) if Recorder.ROW.size_of(name) == 1
+    else slice(Recorder.ROW.offset(name), Recorder.ROW.offset(name) + Recorder.ROW.size_of(name))
+    for name in Recorder.ROW.names
+}  # fmt: skip

@@ -177,3 +177,36 @@ def plot_estimate(
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+ROTOR_FIGURE = "fig12_rotor.png"
+
+
+def plot_rotor(cols: dict[str, npt.NDArray[np.float64]], out_dir: Path, title: str = "") -> Path | None:
+    """Fig 12, on the rotor plant: rotor speed, the governor's throttle, and the tip-path
+    plane's flapping beside the cyclic that commands it (run.csv's rotor columns). None
+    (nothing drawn) for a flight without them."""
+    if "omega_rotor" not in cols:
+        return None
+    out_dir.mkdir(parents=True, exist_ok=True)
+    path = out_dir / ROTOR_FIGURE
+    t = cols["t"]
+    fig, axs = plt.subplots(4, 1, figsize=(8, 9), sharex=True)
+    axs[0].plot(t, cols["omega_rotor"], "b", lw=0.9)
+    axs[0].set_ylabel("rotor speed [rad/s]")
+    axs[1].plot(t, cols["throttle"], "m", lw=0.9)
+    axs[1].set_ylabel("throttle [0-1]")
+    for a, flap, cyc, name in ((axs[2], "a1", "eps", "longitudinal"), (axs[3], "b1", "eta", "lateral")):
+        a.plot(t, cols[cyc], "k--", lw=0.8, label=f"cyclic {cyc}")
+        a.plot(t, cols[flap], "b", lw=0.9, label=f"flapping {flap}")
+        a.set_ylabel(f"{name} [rad]")
+        a.legend(loc="lower right", bbox_to_anchor=(1.0, 1.0), ncol=2, frameon=False, fontsize=8)
+    for a in axs:
+        a.grid(alpha=0.3)
+    suffix = f" - {title}" if title else ""
+    fig.suptitle(f"Fig. 12: rotor speed, throttle, flapping{suffix}", fontsize=10)
+    axs[-1].set_xlabel("t [s]")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

@@ -34,7 +34,7 @@ def _simulate(args: argparse.Namespace) -> int:
     from autopilot.estimation.config import EstimatorConfig
     from autopilot.pid.gains import PidGains
     from autopilot.scenario import Scenario
-    from ground.plots import plot_estimate, plot_figures, plot_world
+    from ground.plots import plot_estimate, plot_figures, plot_rotor, plot_world
     from heli_common.plant_model import PlantModel
     from heli_sitl.closed_loop import SimOptions, simulate
 
@@ -65,6 +65,9 @@ def _simulate(args: argparse.Namespace) -> int:
     summary = record.write_summary(out / "summary.json")
     title = f"{scenario.run.name}, {record.extra['feedforward']}"
     figs = plot_figures(record.columns(), out, title=title)
+    rotor_fig = plot_rotor(record.columns(), out, title=f"{title}, {opts.plant.kind} plant")
+    if rotor_fig is not None:
+        figs.append(rotor_fig)
     if record.air_nwu_m_s is not None and record.servo_rad is not None:
         figs.append(plot_world(record.t_s, record.air_nwu_m_s, record.pitches, record.servo_rad, out,
                                title=f"{title}, world {opts.world.name if opts.world else ''}"))  # fmt: skip
@@ -247,7 +250,7 @@ def _demo(args: argparse.Namespace) -> int:
     import numpy as np
 
     from autopilot.metrics import PITCH_KEYS
-    from ground.plots import plot_figures, plot_world, read_csv_columns
+    from ground.plots import plot_figures, plot_rotor, plot_world, read_csv_columns
     from heli_common.process import terminate_on_sigterm
     from heli_sitl.demo import DemoError, DemoOptions, run_demo
 
@@ -266,6 +269,9 @@ def _demo(args: argparse.Namespace) -> int:
         return 1
     cols = read_csv_columns(out / "run.csv")
     figs = plot_figures(cols, out, title=f"{args.mode} {args.rate_hz:g} Hz")
+    rotor_fig = plot_rotor(cols, out, title=f"{args.mode}, {args.plant} plant")
+    if rotor_fig is not None:
+        figs.append(rotor_fig)
     if (out / "world.csv").is_file():  # the plant flew a world: the air and the servos it reported
         w = read_csv_columns(out / "world.csv")
         air = np.column_stack([w["air_n"], w["air_w"], w["air_u"]])

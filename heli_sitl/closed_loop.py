@@ -185,6 +185,7 @@ def simulate(
     rotors = np.full((n + 1, N_ROTOR + 1), np.nan)
     if g.on:
         rotors[0, :N_ROTOR] = w.ws[WS_ROTOR : WS_ROTOR + N_ROTOR]
+        rotors[0, N_ROTOR] = w.ws[WS_THROTTLE]
     sn = SensingArrays.build(plant, opts.estimator, rate_hz, n)
     if plant.world is not None:
         # the servos start where the first command puts them, as in the plant process; that

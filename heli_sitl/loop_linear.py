@@ -157,17 +157,30 @@ def build_tick_map(
     return tm, z0
 
 
-def fixed_point(tm: TickMap, z0: FloatArray) -> FloatArray:
-    """``z* = F(z*)``: flown to rest first (a stable loop settles), then Newton-polished."""
+FIXED_POINT_TOL = 1e-9  # |F(z*) - z*| accepted as an equilibrium
+
+
+def fixed_point(tm: TickMap, z0: FloatArray) -> tuple[FloatArray, float]:
+    """``z* = F(z*)`` and its residual: solved (least squares) from the plant's trim with the
+    controller started there, and from where 30 s of flight from it came to rest (an
+    unstable loop only settles into a limit cycle, if at all); the better of the two."""
+
+    def solve(start: FloatArray) -> tuple[FloatArray, float]:
+        sol = least_squares(lambda v: tm(v) - v, start, xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=400)
+        z = np.asarray(sol.x)
+        return z, float(np.max(np.abs(tm(z) - z)))
+
+    best = solve(z0)
+    if best[1] <= FIXED_POINT_TOL:
+        return best
     z = z0.copy()
     for _ in range(3000):
         z_new = tm(z)
         if not np.all(np.isfinite(z_new)) or np.max(np.abs(z_new[:N_STATE] - z0[:N_STATE])) > 5.0:
-            z = z0.copy()  # an unstable loop leaves: solve from the start instead
-            break
+            return best
         z = z_new
-    sol = least_squares(lambda v: tm(v) - v, z, xtol=1e-14, ftol=1e-14, gtol=1e-14, max_nfev=200)
-    return np.asarray(sol.x)
+    flown = solve(z)
+    return flown if flown[1] < best[1] else best
 
 
 def _ss(a: FloatArray, b: FloatArray, c: FloatArray, d: FloatArray, dt: float) -> ct.StateSpace:
@@ -177,9 +190,8 @@ def _ss(a: FloatArray, b: FloatArray, c: FloatArray, d: FloatArray, dt: float) -
 def _disk(name: str, loop: ct.StateSpace, stable: bool) -> BreakPoint:
     if not stable:
         return BreakPoint(name, 0.0, 0.0, 0.0)
-    dm, dgm, dpm = ct.disk_margins(loop, OMEGA_RAD_S)
-    return BreakPoint(name, float(dm), float(20.0 * np.log10(dgm)) if np.isfinite(dgm) else math.inf,
-                      float(dpm))  # fmt: skip
+    dm, dgm_db, dpm_deg = ct.disk_margins(loop, OMEGA_RAD_S)  # python-control gives dB and degrees
+    return BreakPoint(name, float(dm), float(dgm_db), float(dpm_deg))
 
 
 def linearize_loop(
@@ -188,7 +200,10 @@ def linearize_loop(
 ) -> LoopLinearization:  # fmt: skip
     """The closed loop of ``controller`` on ``model`` at hover, with ``servos`` (delay and lag)."""
     tm, z0 = build_tick_map(controller, model, design, servos)
-    z = fixed_point(tm, z0)
+    z, residual = fixed_point(tm, z0)
+    if residual > FIXED_POINT_TOL:
+        raise ValueError(f"{controller.kind} on the {model.kind} plant: no hover equilibrium found "
+                         f"(|F(z) - z| = {residual:.1e})")
     jac = _jacobian(tm, z)
     # states the tick only holds (z_i+ = z_i and nothing else: the yaw command of a hover
     # reference, whose every value is an equilibrium) are references, not dynamics

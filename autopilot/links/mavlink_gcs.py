@@ -86,6 +86,7 @@ DEFAULT_RATES_HZ: dict[int, float] = {
     m2.MAVLINK_MSG_ID_ATTITUDE_TARGET: 10.0,
     m2.MAVLINK_MSG_ID_WIND_COV: 2.0,
     m2.MAVLINK_MSG_ID_ACTUATOR_OUTPUT_STATUS: 10.0,  # servo positions, where a world reports them
+    m2.MAVLINK_MSG_ID_RAW_RPM: 4.0,  # main rotor speed, where the rotor plant reports it
     m2.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW: 10.0,
     m2.MAVLINK_MSG_ID_MISSION_CURRENT: 1.0,
     m2.MAVLINK_MSG_ID_VFR_HUD: 4.0,
@@ -375,6 +376,11 @@ class GcsService:
             if sample is None or sample.servo_rad is None:
                 return None
             return m2.MAVLink_actuator_output_status_message(t_us, 0xF, [*sample.servo_rad] + [0.0] * 28)
+        if msg_id == m2.MAVLINK_MSG_ID_RAW_RPM:
+            sample = self.truth() if self.truth is not None else None
+            if sample is None or sample.rotor is None:
+                return None
+            return m2.MAVLink_raw_rpm_message(0, sample.rotor[2] * 60.0 / (2.0 * math.pi))
         if msg_id == m2.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW:
             return telemetry.servo_output(t_us, self._u, self.limits)
         if msg_id == m2.MAVLINK_MSG_ID_MISSION_CURRENT:

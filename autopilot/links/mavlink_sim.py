@@ -12,7 +12,13 @@ from heli_common.closing import Closing
 from heli_common.defaults import HOME
 from heli_common.geo import GeoPoint
 from heli_common.mavlink.fast import ActuatorOutputStatus, Ahrs2, HilGps, HilSensor, SimCodec, WindCov
-from heli_common.mavlink.sim_protocol import MAV_MODE_FLAG_SAFETY_ARMED, StateAssembler, StateSample, receive
+from heli_common.mavlink.sim_protocol import (
+    MAV_MODE_FLAG_SAFETY_ARMED,
+    ROTOR_TRUTH_CHANNELS,
+    StateAssembler,
+    StateSample,
+    receive,
+)
 from heli_common.mavlink.udp import Address, MavlinkUdp
 from heli_common.measurements import (
     N_OUT,
@@ -108,6 +114,7 @@ class SimLink(Closing):
         # the world's truth of the latest state (see StateSample), by its time stamp
         self._air: tuple[int, tuple[float, float, float]] | None = None
         self._servo: tuple[int, tuple[float, float, float, float]] | None = None
+        self._rotor: tuple[int, tuple[float, float, float, float]] | None = None
         self.measurements = Measurements(home)
 
     def latest_state(self, timeout_s: float = 0.0, spin_s: float = 0.0) -> StateSample | None:
@@ -120,6 +127,8 @@ class SimLink(Closing):
             if isinstance(msg, ActuatorOutputStatus):
                 a = msg.actuator
                 self._servo = (msg.time_usec, (a[0], a[1], a[2], a[3]))
+                if msg.active & ROTOR_TRUTH_CHANNELS:
+                    self._rotor = (msg.time_usec, (a[4], a[5], a[6], a[7]))
                 continue
             if self.measurements.feed(msg):
                 continue
@@ -128,7 +137,8 @@ class SimLink(Closing):
                 newest = s
         if newest is not None and self._air is not None and self._air[0] == newest.t_us:
             servo = self._servo[1] if self._servo is not None and self._servo[0] == newest.t_us else None
-            newest = dataclasses.replace(newest, air_nwu_m_s=self._air[1], servo_rad=servo)
+            rotor = self._rotor[1] if self._rotor is not None and self._rotor[0] == newest.t_us else None
+            newest = dataclasses.replace(newest, air_nwu_m_s=self._air[1], servo_rad=servo, rotor=rotor)
         if newest is not None:
             newest = self.measurements.take(newest)
         return newest

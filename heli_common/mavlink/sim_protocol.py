@@ -86,6 +86,10 @@ def encode_state(codec: SimCodec, t_us: int, x: FloatArray) -> bytes:
                               f.vel_ned_m_s)  # fmt: skip
 
 
+N_ROTOR_TRUTH = 4  # a1, b1, rotor speed, throttle
+ROTOR_TRUTH_CHANNELS = 0xF0  # their bits in ACTUATOR_OUTPUT_STATUS.active
+
+
 @dataclass(frozen=True)
 class StateSample:
     t_us: int
@@ -95,6 +99,9 @@ class StateSample:
     # the air at the vehicle (earth NWU, m/s) and the pitches the servos reached (rad)
     air_nwu_m_s: tuple[float, float, float] | None = None
     servo_rad: tuple[float, float, float, float] | None = None
+    # the rotor plant adds its rotor's truth: flapping a1, b1 [rad], rotor speed [rad/s] and
+    # the governor's throttle [0, 1] (ACTUATOR_OUTPUT_STATUS channels 4-7)
+    rotor: tuple[float, float, float, float] | None = None
     # a plant whose sensors are on adds what they measured (heli_common.measurements layout,
     # each sensor's latest sample), the mask of samples new since the last state handed
     # out, and the sensors' time [s] (vehicle time; it stands still while the vehicle is held)

@@ -23,6 +23,7 @@ from heli_common import frames
 from heli_common.links import ServoCommand, ServoInput
 from heli_common.mavlink.fast import ParamSet, SimCodec
 from heli_common.mavlink.sim_protocol import (
+    ROTOR_TRUTH_CHANNELS,
     encode_state,
     period_us,
     plausible_state,
@@ -123,8 +124,12 @@ class PlantServer:
         else:
             n, e, d = frames.nwu_to_ned(w.air_nwu_m_s)
             servo = [float(v) for v in w.pitches_rad] + [0.0] * 28
+        active = 0xF
+        if w.rotor.on:  # the rotor's truth in channels 4-7 (its state is known from the start)
+            servo[4:8] = w.rotor_truth
+            active |= ROTOR_TRUTH_CHANNELS
         air = mavlink2.MAVLink_wind_cov_message(self.t_us, n, e, d, nan, nan, nan, nan, nan)
-        pitches = mavlink2.MAVLink_actuator_output_status_message(self.t_us, 0xF, servo)
+        pitches = mavlink2.MAVLink_actuator_output_status_message(self.t_us, active, servo)
         return self.link.pack(air) + self.link.pack(pitches)
 
     def _end_reached(self) -> bool:

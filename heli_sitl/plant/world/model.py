@@ -363,6 +363,7 @@ class WorldModel:
             if rotor_state0 is None:
                 raise ValueError("the rotor plant needs its initial rotor state")
             ws[WS_ROTOR : WS_ROTOR + N_ROTOR] = rotor_state0
+            ws[WS_THROTTLE] = min(max(g.ki * rotor_state0[rotor.GOV_INT], 0.0), 1.0)  # at its set speed
         return cls(world, af, c, a, wp, ws, np.zeros(wind.N_DRYDEN_COEFFS), np.zeros((N_PITCH, 1)),
                    np.zeros(1), np.asarray(x0, dtype=float), rotor=g)  # fmt: skip
 
@@ -428,6 +429,12 @@ class WorldModel:
         return self.ws[WS_PITCH : WS_PITCH + N_PITCH].copy()
 
 
+
+    @property
+    def rotor_truth(self) -> list[float]:
+        """What the plant reports of its rotor: a1, b1 [rad], rotor speed [rad/s], throttle."""
+        r = self.ws[WS_ROTOR : WS_ROTOR + N_ROTOR]
+        return [float(r[rotor.A1]), float(r[rotor.B1]), float(r[rotor.OMEGA_R]), float(self.ws[WS_THROTTLE])]
 
     @property
     def rotor_state(self) -> FloatArray:
