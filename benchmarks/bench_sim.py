@@ -20,6 +20,7 @@ from autopilot.pid.gains import default_pid_gains
 from autopilot.scenario import Scenario
 from autopilot.tlc.controller import N_DIAG, TLController, tlc_kernel
 from benchmarks import Row, above, below, bench
+from heli_common.plant_model import PlantModel
 from heli_common.state import N_PITCH, POS
 from heli_sitl.closed_loop import SimOptions, simulate
 from heli_sitl.plant.model import Plant, plant_step
@@ -163,20 +164,29 @@ def bench_world() -> list[Row]:
     each effect alone: its cost per plant step over the ideal world's flight (best of 3)."""
     from heli_common.world import AirLoads, Disturbance, Gust, Turbulence, Wind, World
 
+    PAPER = PlantModel("paper")
+
     sc = Scenario.load("paper")
     everything = World.load("everything")
 
-    def wall(world: World | None) -> float:
-        return min(simulate(sc, SimOptions(world=world)).wall_s for _ in range(3))
+    def wall(world: World | None, plant: PlantModel = PAPER) -> float:
+        return min(simulate(sc, SimOptions(world=world, plant=plant)).wall_s for _ in range(3))
 
     n_steps = round(sc.run.duration_s * sc.run.rate_hz)
     ideal = wall(None)
     t_all = wall(everything)
     rtf = sc.run.duration_s / t_all
+    gav = PlantModel.load("gavrilets")
+    t_gav = wall(everything, gav)
+    rtf_gav = sc.run.duration_s / t_gav
     rows = [
         Row("paper 120 s at 100 Hz, --world everything: real-time factor", rtf, "x", *above(rtf, 1000.0)),
         Row("  floor: the same flight in the ideal world, per tick", ideal / n_steps * 1e6, "us"),
-    ]
+        Row("same on --plant gavrilets (rotor plant): real-time factor", rtf_gav, "x",
+            *above(rtf_gav, 1000.0)),
+        Row("  cost per tick of the rotor plant over the paper plant, both in everything",
+            (t_gav - t_all) / n_steps * 1e6, "us"),
+    ]  # fmt: skip
     air = AirLoads(fuselage=True)
     effects = {
         "servos (delay, lag, rate, quantum, dead band)": World(servos=everything.servos),
