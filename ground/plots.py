@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 import matplotlib
 
@@ -137,8 +138,13 @@ def plot_world(
         a.grid(alpha=0.3)
     axs[0].grid(alpha=0.3)
     axs[1].legend(loc="lower right", bbox_to_anchor=(1.0, 1.0), ncol=2, frameon=False, fontsize=8)
+    return _finish(fig, axs, path, "Fig. 10: air velocity, servo command vs position", title)
+
+
+def _finish(fig: Any, axs: Any, path: Path, caption: str, title: str) -> Path:
+    """Caption (with the run's title), time axis, layout, save, close."""
     suffix = f" - {title}" if title else ""
-    fig.suptitle(f"Fig. 10: air velocity, servo command vs position{suffix}", fontsize=10)
+    fig.suptitle(f"{caption}{suffix}", fontsize=10)
     axs[-1].set_xlabel("t [s]")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -203,10 +209,4 @@ def plot_rotor(cols: dict[str, npt.NDArray[np.float64]], out_dir: Path, title: s
         a.legend(loc="lower right", bbox_to_anchor=(1.0, 1.0), ncol=2, frameon=False, fontsize=8)
     for a in axs:
         a.grid(alpha=0.3)
-    suffix = f" - {title}" if title else ""
-    fig.suptitle(f"Fig. 12: rotor speed, throttle, flapping{suffix}", fontsize=10)
-    axs[-1].set_xlabel("t [s]")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _finish(fig, axs, path, "Fig. 12: rotor speed, throttle, flapping", title)

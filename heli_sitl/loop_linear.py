@@ -36,7 +36,7 @@ from heli_common.state import N_PITCH, N_STATE, PITCH_NAMES, FloatArray
 from heli_common.world import Servos, World
 from heli_sitl.plant.model import accept_pitches
 from heli_sitl.plant.rotor import N_ROTOR
-from heli_sitl.plant.trim import STATE_NAMES, hover_rotor_state, trim
+from heli_sitl.plant.trim import STATE_NAMES, hover_rotor_state, jacobian, trim
 from heli_sitl.plant.world.model import WS_ROTOR, WorldModel, world_plant_step
 
 HOVER_ALT_M = 20.0
@@ -121,16 +121,8 @@ class TickMap:
         return np.concatenate([self.plant_step(x, r, s, held), st])
 
 
-def _jacobian(f: Any, z0: FloatArray, rel: float = 1e-7) -> FloatArray:
-    y0 = f(z0)
-    jac = np.empty((y0.size, z0.size))
-    for j in range(z0.size):
-        h = rel * max(1.0, abs(z0[j]))
-        zp, zm = z0.copy(), z0.copy()
-        zp[j] += h
-        zm[j] -= h
-        jac[:, j] = (f(zp) - f(zm)) / (2.0 * h)
-    return jac
+def _jacobian(f: Any, z0: FloatArray) -> FloatArray:
+    return jacobian(f, z0, 1e-7)
 
 
 def build_tick_map(

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -225,26 +226,26 @@ def _mode_name(dom: tuple[str, ...], wn: float) -> str:
     return "+".join(dom)
 
 
+def jacobian(f: Callable[[FloatArray], FloatArray], z0: FloatArray, rel_step: float = 1e-6) -> FloatArray:
+    """Central differences of ``f`` at ``z0``, each step ``rel_step`` x max(1, |z0_j|)."""
+    y0 = f(z0)
+    jac = np.empty((y0.size, z0.size))
+    for j in range(z0.size):
+        h = rel_step * max(1.0, abs(z0[j]))
+        zp, zm = z0.copy(), z0.copy()
+        zp[j] += h
+        zm[j] -= h
+        jac[:, j] = (f(zp) - f(zm)) / (2.0 * h)
+    return jac
+
+
 def linearize(tr: Trim, model: PlantModel, design: Airframe, rel_step: float = 1e-6) -> Linearization:
     """Central differences of the compiled derivative about ``tr`` (steps ``rel_step`` x
     max(1, |value|)); the position states are kept (their rows are kinematics)."""
     fn = PlantFunction.build(model, design)
     x0, u0 = tr.x, tr.u
-    n, m = x0.size, u0.size
-    a = np.empty((n, n))
-    b = np.empty((n, m))
-    for j in range(n):
-        h = rel_step * max(1.0, abs(x0[j]))
-        xp, xm = x0.copy(), x0.copy()
-        xp[j] += h
-        xm[j] -= h
-        a[:, j] = (fn(xp, u0) - fn(xm, u0)) / (2.0 * h)
-    for j in range(m):
-        h = rel_step * max(1.0, abs(u0[j]))
-        up, um = u0.copy(), u0.copy()
-        up[j] += h
-        um[j] -= h
-        b[:, j] = (fn(x0, up) - fn(x0, um)) / (2.0 * h)
+    a = jacobian(lambda x: fn(x, u0), x0, rel_step)
+    b = jacobian(lambda u: fn(x0, u), u0, rel_step)
     return Linearization(tr, a, b, fn.state_names, PITCH_NAMES, _modes(a, fn.state_names))
 
 
