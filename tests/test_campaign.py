@@ -189,6 +189,37 @@ def test_the_controller_is_a_campaign_key_and_its_gains_can_vary(tmp_path: Path)
         prepare(h, controller="pid")
 
 
+def test_the_plant_is_a_campaign_key(tmp_path: Path) -> None:
+    """``plant = "gavrilets"`` flies every sample on the rotor plant: a row is that flight's
+    metrics; a plant that does not load is refused before anything flies."""
+    from heli_common.plant_model import PlantModel
+    from heli_sitl.campaign.flight import fly, metrics
+    from heli_sitl.campaign.settings import apply
+    from heli_sitl.closed_loop import SimOptions, simulate
+
+    body = ('samples = 2\nseed = 4\nduration_s = 10.0\n[[vary]]\nkey = "initial.yaw_error_rad"\n'
+            "low = 0.0\nhigh = 0.5\n")
+    f, g = tmp_path / "gav.toml", tmp_path / "paper.toml"
+    f.write_text('plant = "gavrilets"\n' + body)
+    g.write_text(body)
+    spec, base, table = prepare(f)
+    assert spec.plant == "gavrilets" and base.plant.kind == "gavrilets"
+    values = table[0].tolist()
+    row = fly(spec, base, 0, spec.keys, values)
+    assert not row["failed"]
+    spec_p, base_p, _ = prepare(g)
+    assert base_p.plant.kind == "paper"
+    assert row["rms_0_m"] != fly(spec_p, base_p, 0, spec_p.keys, values)["rms_0_m"]  # another plant
+    settings = {**dict(zip(spec.keys, values, strict=True)), "world.seed": float(row["seed"])}
+    flight = apply(base, settings)
+    rec = simulate(flight.scenario, SimOptions(world=flight.world, duration_s=10.0,
+                                               plant=PlantModel.load("gavrilets")))  # fmt: skip
+    assert metrics(rec, spec)["rms_0_m"] == row["rms_0_m"]  # the row is that very flight
+    f.write_text('plant = "nowhere.toml"\n' + body)
+    with pytest.raises(ConfigError, match=r"nowhere\.toml"):
+        prepare(f)
+
+
 def test_shipped_campaigns_are_valid_and_sized_as_documented() -> None:
     sizes = {
         "robustness": 1000,

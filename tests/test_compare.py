@@ -111,6 +111,7 @@ def test_bad_comparison_files_are_refused(tmp_path: Path) -> None:
         ('worlds = ["nowhere"]\n[[contender]]\nlabel = "a"\n', "nowhere"),
         ('[[contender]]\nlabel = "a"\n[[contender]]\nlabel = "A"\n', "labels must differ"),
         ('contenders = 1\n[[contender]]\nlabel = "a"\n', "unknown key 'contenders'"),
+        ('plant = "gavrilet"\n[[contender]]\nlabel = "a"\n', "expected paper, gavrilets or a plant file"),
     ):
         f.write_text(text)
         with pytest.raises(ConfigError) as err:
