@@ -138,14 +138,19 @@ def derivative_in_air(
     """dx/dt with the air ``w_nwu`` held. The paper's plant (``g.on`` False): rotor loads
     with inflow (or the hover maps), fuselage drag on the air-relative velocity; the rotor
     plant (:mod:`heli_sitl.plant.rotor`): its own loads and its rotor states after the rigid
-    body's in ``x``. Then the injected disturbance."""
+    body's in ``x``. Then the injected disturbance. The ideal world (nothing of the air on)
+    computes no air-relative velocity: it is the paper's plant, at the paper plant's cost."""
+    dr = np.empty(0)
+    if not (g.on or a.inflow or a.fuselage):
+        tm, qm, tt, qt = rotor_loads(u[0], u[1], c)
+        f, q = forces_from_loads(x, u, c, tm, qm, tt, qt)
+        return _with_disturbance(t, x, f, q, c, wp, dr, 0.0)
     rt = rot_body_to_earth(x[PHI], x[THETA], x[PSI])
     u_a, v_a, w_a = air_relative_flu(x, rt, w_nwu)
-    dr = np.empty(0)
     if g.on:
         f, q, dr, _, _, _ = rotor.rotor_loads(x, u, c, g, u_a, v_a, w_a, ws[WS_LAM_MAIN], ws[WS_LAM_TAIL],
                                               N_STATE)  # fmt: skip
-        return _with_disturbance(t, x, rt, f, q, c, wp, dr, g.rot)
+        return _with_disturbance(t, x, f, q, c, wp, dr, g.rot)
     if a.inflow:
         tm, qm, tt, qt, lam_m, _ = air.rotor_loads_in_air(
             u[0], u[1], u_a, v_a, w_a, x[P_X], x[Q_Y], x[R_Z], c, a.tip_speed_main,
@@ -161,12 +166,12 @@ def derivative_in_air(
         f[0] += fx
         f[1] += fy
         f[2] += fz
-    return _with_disturbance(t, x, rt, f, q, c, wp, dr, 0.0)
+    return _with_disturbance(t, x, f, q, c, wp, dr, 0.0)
 
 
 @njit
 def _with_disturbance(
-    t: float, x: FloatArray, rt: FloatArray, f: FloatArray, q: FloatArray, c: PlantConstants, wp: FloatArray,
+    t: float, x: FloatArray, f: FloatArray, q: FloatArray, c: PlantConstants, wp: FloatArray,
     dr: FloatArray, rot: float,
 ) -> FloatArray:  # fmt: skip
     """The injected disturbance added to ``f``, ``q``; the rigid body's derivative, then the
@@ -179,6 +184,7 @@ def _with_disturbance(
                 f[i] += s * df[i]
                 q[i] += s * dq[i]
         else:  # earth -> body: R^T
+            rt = rot_body_to_earth(x[PHI], x[THETA], x[PSI])
             for i in range(3):
                 f[i] += s * (rt[0, i] * df[0] + rt[1, i] * df[1] + rt[2, i] * df[2])
                 q[i] += s * (rt[0, i] * dq[0] + rt[1, i] * dq[1] + rt[2, i] * dq[2])
