@@ -15,10 +15,10 @@ from scipy.optimize import fsolve
 from autopilot.metrics import FlightRecord
 from autopilot.scenario import Scenario
 from autopilot.tlc.controller import (
-    N_CTRL_STATE,
     N_DIAG,
     S_LAST_U,
     S_PSI_C,
+    S_SENT,
     S_STARTED,
     TLCConstants,
     TLController,
@@ -131,7 +131,8 @@ def test_paper_nose_along_the_path_pseudo(paper: Scenario) -> None:
 # --- linearised stability ------------------------------------------------------------------------
 
 _EXCLUDED = {S_PSI_C, S_STARTED, *range(S_LAST_U, S_LAST_U + N_PITCH)}
-CTRL_IDX = np.array([i for i in range(N_CTRL_STATE) if i not in _EXCLUDED])
+# the paper's TLC uses the blocks before the rotor-aware ones (from S_SENT on)
+CTRL_IDX = np.array([i for i in range(S_SENT) if i not in _EXCLUDED])
 
 
 def one_tick_map(k: TLCConstants, st_full: FloatArray, plant: Plant, ref: FloatArray):  # type: ignore[no-untyped-def]

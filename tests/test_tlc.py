@@ -122,7 +122,7 @@ def test_allocation_reproduces_torque_command(
     c: PlantConstants, qc: tuple[float, float, float], tm: float
 ) -> None:
     qm = main_rotor_torque(tm, c)
-    tt, eps, eta = solve_cyclic_tail(np.array(qc), tm, qm, c)
+    tt, eps, eta = solve_cyclic_tail(np.array(qc), tm, qm, c, 0.0)
     assert_allclose(design_torque(tm, qm, tt, eps, eta, c), qc, rtol=1e-9, atol=1e-9)
 
 
@@ -137,7 +137,7 @@ def test_main_rotor_torque_matches_plant(tm: float) -> None:
 def test_allocation_at_hover_gives_spec_tail_thrust() -> None:
     """Qc = 0 at hover thrust needs Tt = Qm / lt (about 4.9 N) and small cyclic."""
     qm = main_rotor_torque(MG, _C)
-    tt, eps, eta = solve_cyclic_tail(np.zeros(3), MG, qm, _C)
+    tt, eps, eta = solve_cyclic_tail(np.zeros(3), MG, qm, _C, 0.0)
     assert_allclose(tt, 4.85, atol=0.01)
     # the tail's rolling moment Tt ht is balanced by lateral cyclic (eta < 0), and the pitch
     # moment -Qm eta that this creates by longitudinal cyclic: Tm hm eps = Qm eta

@@ -18,14 +18,20 @@ def main_rotor_torque(tm: float, c: PlantConstants) -> float:
 
 
 @njit
-def solve_cyclic_tail(qc: FloatArray, tm: float, qm: float, c: PlantConstants) -> tuple[float, float, float]:
+def solve_cyclic_tail(
+    qc: FloatArray, tm: float, qm: float, c: PlantConstants, k_hub: float
+) -> tuple[float, float, float]:
     """[Tt, eps, eta] = QA^-1 (Qc - QB) for the design torque model (15), by Cramer's rule.
 
     QA = [[ht, Qm, Tm hm], [0, Tm hm, -Qm], [lt, 0, -Tm lm]], QB = [0, Tm lm, -Qm];
     det QA = -(ht hm lm + lt hm^2) Tm^2 - lt Qm^2 < 0 whenever Qm > 0 (always: qc >= delta/8).
+
+    With a hub spring ``k_hub`` [N m/rad] (the rotor-aware TLC; 0 in the paper's model) the
+    disc's tilt (eps, eta are then the flapping a1, b1) moments by ``Tm hm + k_hub`` per rad.
     """
-    a11, a12, a13 = c.ht, qm, tm * c.hm
-    a21, a22, a23 = 0.0, tm * c.hm, -qm
+    lever = tm * c.hm + k_hub
+    a11, a12, a13 = c.ht, qm, lever
+    a21, a22, a23 = 0.0, lever, -qm
     a31, a32, a33 = c.lt, 0.0, -tm * c.lm
     b1, b2, b3 = qc[0], qc[1] - tm * c.lm, qc[2] + qm
     det = a11 * (a22 * a33 - a23 * a32) - a12 * (a21 * a33 - a23 * a31) + a13 * (a21 * a32 - a22 * a31)
@@ -45,22 +51,35 @@ def clip(v: float, lo: float, hi: float) -> tuple[float, bool]:
 
 
 @njit
-def allocate(qc: FloatArray, tm: float, c: PlantConstants, lim: FloatArray) -> tuple[FloatArray, float, int]:
-    """Thrust ``tm`` and body torque ``qc`` -> the four pitches (theta_m, theta_t, eps, eta),
-    each clipped to ``lim`` (4 x 2). Returns (pitches, the thrust the clipped collective
-    really gives, saturation mask: 1 theta_m, 2 theta_t, 4 eps, 8 eta)."""
+def collective_tail_tilt(
+    qc: FloatArray, tm: float, c: PlantConstants, lim: FloatArray, k_hub: float
+) -> tuple[FloatArray, float, int]:
+    """Thrust ``tm`` and body torque ``qc`` -> (theta_m, theta_t, the disc's tilt forward and
+    to the right), the two pitches clipped to ``lim``. Returns (those four, the thrust the
+    clipped collective really gives, saturation mask: 1 theta_m, 2 theta_t)."""
     theta_m, sat_m = clip(
         rotor.pitch_from_thrust_coeff(tm / c.thrust_scale_m, c.a_m, c.s_m), lim[0, 0], lim[0, 1]
     )
     if sat_m:  # recompute the thrust the clipped collective really gives
         tm = rotor.thrust_coeff(theta_m, c.a_m, c.s_m) * c.thrust_scale_m
     qm = main_rotor_torque(tm, c)
-    tt, eps, eta = solve_cyclic_tail(qc, tm, qm, c)
+    tt, tilt_x, tilt_y = solve_cyclic_tail(qc, tm, qm, c, k_hub)
     theta_t, sat_t = clip(
         rotor.pitch_from_thrust_coeff(tt / c.thrust_scale_t, c.a_t, c.s_t), lim[1, 0], lim[1, 1]
     )
-    eps, sat_e = clip(eps, lim[2, 0], lim[2, 1])
-    eta, sat_n = clip(eta, lim[3, 0], lim[3, 1])
     u = np.empty(N_PITCH)
-    u[0], u[1], u[2], u[3] = theta_m, theta_t, eps, eta
-    return u, tm, sat_m * 1 + sat_t * 2 + sat_e * 4 + sat_n * 8
+    u[0], u[1], u[2], u[3] = theta_m, theta_t, tilt_x, tilt_y
+    return u, tm, sat_m * 1 + sat_t * 2
+
+
+@njit
+def allocate(qc: FloatArray, tm: float, c: PlantConstants, lim: FloatArray) -> tuple[FloatArray, float, int]:
+    """Thrust ``tm`` and body torque ``qc`` -> the four pitches (theta_m, theta_t, eps, eta),
+    each clipped to ``lim`` (4 x 2). Returns (pitches, the thrust the clipped collective
+    really gives, saturation mask: 1 theta_m, 2 theta_t, 4 eps, 8 eta)."""
+    u, tm, mask = collective_tail_tilt(qc, tm, c, lim, 0.0)
+    eps, sat_e = clip(u[2], lim[2, 0], lim[2, 1])
+    eta, sat_n = clip(u[3], lim[3, 0], lim[3, 1])
+    u[2], u[3] = eps, eta
+    return u, tm, mask + sat_e * 4 + sat_n * 8
+

@@ -34,28 +34,54 @@ from autopilot.control import (
 from autopilot.reference import ACC_0 as REF_ACC
 from autopilot.reference import POS_0 as REF_POS
 from autopilot.reference import VEL_0 as REF_VEL
-from autopilot.tlc.allocation import allocate
+from autopilot.tlc.allocation import allocate, collective_tail_tilt
 from autopilot.tlc.differentiator import DiffCoeffs, diff_reset, diff_step, discretize
 from autopilot.tlc.gains import Gains
 from autopilot.tlc.inversion import force_to_thrust_attitude, limit_tilt, yaw_rate_command
 from autopilot.tlc.loops import a3_matrix, a4_matrix
+from autopilot.tlc.rotor_aware import (
+    SERVO_STATE_SIZE,
+    RotorAwareConstants,
+    command_filter,
+    flapping_inversion,
+    observe_flapping,
+    rotor_aware_constants,
+)
 from heli_common.airframe import Airframe, PlantConstants
 from heli_common.jit import njit
 from heli_common.kinematics import cross, euler_rate_matrix, rot_body_to_earth, wrap_pi
-from heli_common.state import EULER, OMEGA, POS, VEL, FloatArray
+from heli_common.layout import Layout
+from heli_common.state import EULER, N_PITCH, OMEGA, POS, VEL, FloatArray
 
 # reference vector (earth NWU): commanded position and, where known, its derivatives
 
-# controller state layout
-S_I1, S_I2, S_I3, S_I4 = 0, 3, 6, 9  # error integrals of loops 1-4
-S_D_POS = 12  # pseudo-differentiator of Pc (x1[3], x2[3]), feedforward "pseudo" only
-S_D_A = 18  # of a = Rt Vc (loop 2, earth frame)
-S_D_GAMMA = 24  # of gamma_c
-S_D_OMEGA = 30  # of omega_c
-S_PSI_C = 36  # yaw command integral
-S_STARTED = 37  # 0 until the first update initialised the filters
-S_LAST_U = 38  # last valid output (4)
-N_CTRL_STATE = 42
+# controller state layout: the paper's TLC, then what the rotor-aware TLC adds (unused by
+# the paper's, which never reads or writes past its own blocks)
+STATE = Layout(
+    "TLC state",
+    ("i1", 3), ("i2", 3), ("i3", 3), ("i4", 3),  # error integrals of loops 1-4
+    ("d_pos", 6),  # pseudo-differentiator of Pc (x1[3], x2[3]), feedforward "pseudo" only
+    ("d_a", 6),  # of a = Rt Vc (loop 2, earth frame)
+    ("d_gamma", 6),  # of gamma_c
+    ("d_omega", 6),  # of omega_c
+    ("psi_c", 1),  # yaw command integral
+    ("started", 1),  # 0 until the first update initialised the filters
+    ("last_u", N_PITCH),  # last valid output
+    ("sent", N_PITCH),  # rotor-aware: the command filter's last command sent
+    ("flap_hat", 2),  # rotor-aware: the flapping observer's a1^, b1^
+    ("d_flap", 6),  # rotor-aware: pseudo-differentiator of (a1_c, b1_c, 0)
+    ("servo", SERVO_STATE_SIZE),  # rotor-aware: the command filter's servo model
+)  # fmt: skip
+S_I1, S_I2, S_I3, S_I4 = (STATE.offset(n) for n in ("i1", "i2", "i3", "i4"))
+S_D_POS, S_D_A, S_D_GAMMA, S_D_OMEGA = (STATE.offset(n) for n in ("d_pos", "d_a", "d_gamma", "d_omega"))
+S_PSI_C = STATE.offset("psi_c")
+S_STARTED = STATE.offset("started")
+S_LAST_U = STATE.offset("last_u")
+S_SENT = STATE.offset("sent")
+S_FLAP_HAT = STATE.offset("flap_hat")
+S_D_FLAP = STATE.offset("d_flap")
+S_SERVO = STATE.offset("servo")
+N_CTRL_STATE = STATE.size
 
 
 class Feedforward(enum.Enum):
@@ -74,7 +100,9 @@ class TLCConstants(NamedTuple):
     dt_s: float
     tilt_max_rad: float
     yaw_hold_speed_m_s: float
+    max_speed_m_s: float  # loop 1's horizontal speed command limit (0: none)
     exact_ff: bool
+    rotor: RotorAwareConstants  # loop 5 and the command filter (``on`` False: the paper's TLC)
 
 
 def make_constants(airframe: Airframe, gains: Gains, rate_hz: float, ff: Feedforward) -> TLCConstants:
@@ -97,8 +125,31 @@ def make_constants(airframe: Airframe, gains: Gains, rate_hz: float, ff: Feedfor
         dt_s=dt,
         tilt_max_rad=gains.limits.tilt_max_rad,
         yaw_hold_speed_m_s=gains.limits.yaw_hold_speed_m_s,
+        max_speed_m_s=gains.limits.max_speed_m_s,
         exact_ff=ff is Feedforward.EXACT,
+        rotor=rotor_aware_constants(gains.rotor, airframe, dt),
     )
+
+
+@njit
+def flapping_loop(
+    k: TLCConstants, s: FloatArray, om: FloatArray, wc: FloatArray, qc: FloatArray, tm: float, first: bool
+) -> tuple[FloatArray, float, int]:
+    """The rotor-aware TLC's allocation: torque ``qc`` and thrust ``tm`` -> collective, tail and
+    the disc's tilt (with the hub spring), loop 5 -> cyclic, the command filter -> the pitches
+    to send; the observer then takes what the servos achieved. Returns (pitches, thrust,
+    mask of the channels clipped at a position limit)."""
+    r = k.rotor
+    tilt, tm, mask = collective_tail_tilt(qc, tm, k.plant, k.limits, r.k_hub_n_m)
+    # nominal rates (loop 3's command) in the inversion: the rotor's own rate damping then
+    # acts on the rate error, as the paper's nominal-plus-regulator split intends
+    eps, eta = flapping_inversion(r, s, S_D_FLAP, S_FLAP_HAT, tilt[2:4], wc[0], wc[1], first)
+    desired = tilt.copy()
+    desired[2], desired[3] = eps, eta
+    achieved = np.empty(N_PITCH)
+    u, clipped, _slowed = command_filter(r, s, S_SENT, S_SERVO, desired, k.limits, first, achieved)
+    observe_flapping(r, s, S_FLAP_HAT, achieved, om[0], om[1])
+    return u, tm, mask | clipped
 
 
 @njit
@@ -144,6 +195,13 @@ def tlc_kernel(
         d2pc[:] = ref[REF_ACC : REF_ACC + 3]
     pe = pc - pos
     a = dpc + k.w2[0] * s[S_I1 : S_I1 + 3] + k.zw2[0] * pe
+    speed_limited = False
+    if k.max_speed_m_s > 0.0:
+        h = math.hypot(a[0], a[1])
+        if h > k.max_speed_m_s:
+            a[0] *= k.max_speed_m_s / h
+            a[1] *= k.max_speed_m_s / h
+            speed_limited = True
     rt = rot_body_to_earth(gam[0], gam[1], gam[2])
     vc = rt.T @ a
 
@@ -187,8 +245,11 @@ def tlc_kernel(
         k.w2[3] * s[S_I4 : S_I4 + 3] + k.zw2[3] * we + a4 @ we
     )
 
-    # --- allocation with saturation
-    u, tm, sat_mask = allocate(qc, tm, c, k.limits)
+    # --- allocation with saturation (the rotor-aware TLC: to the disc's tilt, then loop 5)
+    if k.rotor.on:
+        u, tm, sat_mask = flapping_loop(k, s, om, wc, qc, tm, first)
+    else:
+        u, tm, sat_mask = allocate(qc, tm, c, k.limits)
     if not all_finite(u) or not all_finite(s):
         return refuse(st, S_LAST_U, out, diag, BAD_OUTPUT)
 
@@ -196,7 +257,8 @@ def tlc_kernel(
     saturated = sat_mask != 0
     if not hold_integrators:
         if not (saturated or tilt_limited):
-            s[S_I1 : S_I1 + 3] += dt * pe
+            if not speed_limited:
+                s[S_I1 : S_I1 + 3] += dt * pe
             s[S_I2 : S_I2 + 3] += dt * ve
         if not saturated:
             s[S_I3 : S_I3 + 3] += dt * ge

@@ -26,6 +26,26 @@ class LoopGains:
 class CommandLimits:
     tilt_max_rad: float = spec("rad", 0.01, 1.2)
     yaw_hold_speed_m_s: float = spec("m/s", 0.0, 10.0)
+    # loop 1's horizontal velocity command is held to this (0 = no limit, the paper's): a far
+    # start then flies at this speed instead of tilting to the limit (the PID's max_speed_m_s)
+    max_speed_m_s: float = spec("m/s", 0.0, 50.0, default=0.0)
+
+
+@dataclass(frozen=True)
+class RotorAwareGains:
+    """Loop 5 of the rotor-aware TLC (docs/tlc-rotor.md): the main rotor's flapping as one
+    more subsystem of the cascade, and a command filter that models the servos."""
+
+    # the plant file whose flapping the inversion is designed on (hub stiffness, the
+    # stabilizer bar's time constant, the cyclic's gains); "gavrilets" or a path
+    design_plant: str = spec()
+    # loop 5's error regulator: the flapping error decays at 1/tau_e + this rate
+    flapping_rate_rad_s: float = spec("rad/s", 0.0, 500.0)
+    # the pseudo-differentiator of the flapping command (its derivative feeds the inversion)
+    differentiator: DifferentiatorGains = spec()
+    # the world preset whose servos the command filter models ("ideal": none); the filter
+    # sends only what those servos can follow and feeds the flapping observer what they achieve
+    servos: str = spec(default="ideal")
 
 
 @dataclass(frozen=True)
@@ -37,6 +57,8 @@ class Gains:
     loop3_attitude_kinematics: LoopGains = spec()
     loop4_attitude_dynamics: LoopGains = spec()
     limits: CommandLimits = spec()
+    # present: the rotor-aware TLC (loop 5 and the command filter); absent: the paper's
+    rotor: RotorAwareGains | None = spec(default=None)
 
     @classmethod
     def load(cls, path: str | Path = "gains_paper.toml") -> Gains:

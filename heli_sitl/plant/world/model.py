@@ -26,6 +26,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from heli_common import servo_model as servos
 from heli_common.airframe import Airframe, PlantConstants
 from heli_common.gusts import gust_factor, mean_wind_nwu
 from heli_common.jit import njit
@@ -37,7 +38,7 @@ from heli_sitl.plant import rotor
 from heli_sitl.plant.contact import apply_ground_contact
 from heli_sitl.plant.dynamics import forces_from_loads, rigid_body, rotor_loads
 from heli_sitl.plant.rotor import N_ROTOR, RotorConstants
-from heli_sitl.plant.world import air, servos, wind
+from heli_sitl.plant.world import air, wind
 
 
 class AirConstants(NamedTuple):
@@ -390,12 +391,7 @@ class WorldModel:
             wind.dryden_init(self.dryden, turb, self.world.seed)
 
     def _servos(self, h_s: float, u0: FloatArray, limits: FloatArray) -> None:
-        sv = self.world.servos
-        rate = [r if r > 0.0 else math.inf for r in sv.rate_rad_s]
-        self.servo_p = servos.servo_parameters(
-            sv.delay_s, rate, sv.tau_s, limits[:, 0].tolist(), limits[:, 1].tolist(), sv.quantum_rad,
-            sv.deadband_rad, h_s,
-        )
+        self.servo_p = servos.servo_table(self.world.servos, limits, h_s)
         held = self.ws[WS_PITCH : WS_PITCH + N_PITCH] if self.h_s else np.clip(u0, limits[:, 0], limits[:, 1])
         self.servo_s = servos.servo_state(self.servo_p, np.array(held))
 

@@ -1,5 +1,8 @@
 """Servos and linkage: what sits between the held blade-pitch command and the blade (compiled).
 
+One model, two users: the plant's world moves its servos with it, and a controller's command
+filter (the rotor-aware TLC) runs the same model on what it sends, to know what was achieved.
+
 Per channel (the four pitches of ``heli_common.state``), advanced once per plant (sub)step of
 length ``h`` with the command held over the step::
 
@@ -64,6 +67,7 @@ import numpy as np
 
 from heli_common.jit import njit
 from heli_common.state import N_PITCH, PITCH_NAMES, FloatArray
+from heli_common.world import Servos
 
 # params[channel, SP_*]
 SP_DELAY_STEPS = 0
@@ -157,6 +161,15 @@ def servo_parameters(
     return p
 
 
+def servo_table(servos: Servos, limits: FloatArray, step_s: float) -> FloatArray:
+    """:func:`servo_parameters` for a world's ``servos`` (a rate of 0 is none) and the
+    airframe's pitch ``limits`` (4 x 2)."""
+    rate = [r if r > 0.0 else math.inf for r in servos.rate_rad_s]
+    lim = np.asarray(limits, dtype=float)
+    return servo_parameters(servos.delay_s, rate, servos.tau_s, lim[:, 0].tolist(), lim[:, 1].tolist(),
+                            servos.quantum_rad, servos.deadband_rad, step_s)  # fmt: skip
+
+
 def fifo_slots(params: FloatArray) -> int:
     """Slots the FIFO ring needs: the largest delay in steps."""
     return int(np.max(params[:, SP_DELAY_STEPS]))
@@ -175,13 +188,22 @@ def servo_state(params: FloatArray, initial_rad: FloatArray) -> FloatArray:
     for i in range(N_PITCH):
         lo, hi = params[i, SP_LO], params[i, SP_HI]
         _check(bool(lo <= x0[i] <= hi), i, "initial_rad", float(x0[i]), f"finite and in [{lo}, {hi}]")
-    n_slots = fifo_slots(params)
-    state = np.empty(SS_FIFO + n_slots * N_PITCH)
-    state[SS_RING_INDEX] = 0.0
-    state[SS_POSITION : SS_POSITION + N_PITCH] = x0
-    state[SS_TARGET : SS_TARGET + N_PITCH] = x0
-    state[SS_FIFO:] = np.tile(x0, n_slots)
+    state = np.empty(SS_FIFO + fifo_slots(params) * N_PITCH)
+    servo_rest(state, x0)
     return state
+
+
+@njit
+def servo_rest(state: FloatArray, position: FloatArray) -> None:
+    """``state`` (its size sets the FIFO's slots) at rest at ``position``: position, target
+    and every FIFO slot hold it."""
+    state[SS_RING_INDEX] = 0.0
+    n_slots = (state.shape[0] - SS_FIFO) // N_PITCH
+    for i in range(N_PITCH):
+        state[SS_POSITION + i] = position[i]
+        state[SS_TARGET + i] = position[i]
+        for k in range(n_slots):
+            state[SS_FIFO + k * N_PITCH + i] = position[i]
 
 
 @njit
