@@ -156,6 +156,31 @@ def _trim(args: argparse.Namespace) -> int:
     return 0
 
 
+def _margins(args: argparse.Namespace) -> int:
+    from autopilot.controllers import build_controller
+    from autopilot.pid.gains import PidGains
+    from autopilot.scenario import Scenario
+    from heli_common.plant_model import PlantModel
+    from heli_sitl.loop_linear import linearize_loop, servo_model
+
+    scenario = Scenario.load(args.scenario, gains=args.gains if args.controller == "tlc" else None)
+    pid = PidGains.load(args.gains or "gains_pid.toml") if args.controller == "pid" else None
+    rows = []
+    for plant in args.plant or ["paper", "gavrilets"]:
+        for servos in args.servos or ["servos-default"]:
+            c = build_controller(args.controller, scenario.airframe, scenario.gains, scenario.run.rate_hz,
+                                 pid_gains=pid)  # fmt: skip
+            name, sv = servo_model(servos)
+            lin = linearize_loop(c, PlantModel.load(plant), scenario.airframe, sv, name)
+            rows.append(lin)
+            print(f"# {lin.summary()}")
+            if args.all:
+                for b in (*lin.break_points, lin.input_multiloop):
+                    print(f"#   {b.name:22s} {b.disk_margin:6.3f} {b.gain_margin_db:6.1f} dB "
+                          f"{b.phase_margin_deg:5.1f} deg")  # fmt: skip
+    return 0
+
+
 def _compare(args: argparse.Namespace) -> int:
     from heli_sitl.compare import command_line, run_compare
 
@@ -433,6 +458,17 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--scenario", default="paper", help="the design airframe (the paper plant's)")
     tr.add_argument("--json", action="store_true", help="trims and modes as JSON")
     tr.set_defaults(func=_trim)
+
+    mg = sub.add_parser("margins", help="the closed loop linearised at hover: disk margins per break point")
+    mg.add_argument("--controller", choices=("tlc", "pid"), default="tlc")
+    mg.add_argument("--gains", default=None, help="gain file (default: the scenario's; pid: gains_pid.toml)")
+    mg.add_argument("--plant", action="append", default=None, metavar="paper|gavrilets|FILE",
+                    help="repeat for several (default: both)")
+    mg.add_argument("--servos", action="append", default=None, metavar="PRESET|ideal",
+                    help="a world preset's servos (default: servos-default); delay <= one period")
+    mg.add_argument("--scenario", default="paper", help="the design airframe and control rate")
+    mg.add_argument("--all", action="store_true", help="every break point, not only the worst")
+    mg.set_defaults(func=_margins)
 
     c = sub.add_parser("campaign", help="fly a campaign of flights in-process on Dask; Parquet, figures")
     c.add_argument("file", help="campaign TOML, or a name in configs/campaigns/ (robustness, ...)")

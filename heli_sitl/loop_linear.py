@@ -73,6 +73,18 @@ class LoopLinearization:
     def worst(self) -> BreakPoint:
         return min(self.break_points, key=lambda b: b.disk_margin)
 
+    def summary(self) -> str:
+        """One line, as gain files state it in their headers."""
+        if not self.stable:
+            w_rad_s = self.dominant_rad_s.imag
+            return (f"{self.plant} plant, servos {self.servos or 'ideal'}: UNSTABLE "
+                    f"(max |lambda| {self.spectral_radius:.4f}, {w_rad_s:.1f} rad/s)")  # fmt: skip
+        w = self.worst()
+        return (f"{self.plant} plant, servos {self.servos or 'ideal'}: stable, worst disk margin "
+                f"{w.disk_margin:.2f} ({w.gain_margin_db:.1f} dB, {w.phase_margin_deg:.0f} deg) "
+                f"at {w.name}; "
+                f"all four inputs at once {self.input_multiloop.disk_margin:.2f}")  # fmt: skip
+
 
 @dataclass
 class TickMap:
