@@ -1,7 +1,9 @@
 """What a campaign answers: a summary table, campaign.json, figures, Sobol indices.
 
 * ``summary_rows``: per numeric metric, p5 / p50 / p95 / max over the flights that did not
-  fail, with the failure and divergence counts (printed on the console);
+  fail, the median and the 95th percentile with their bootstrap 95 % intervals
+  (:mod:`heli_sitl.stats`), with the failure and divergence counts and the loss rate's exact
+  95 % interval (printed on the console);
 * ``hist.png``: each metric's histogram; ``vs_<setting>.png``: each metric against each
   varied setting (diverged flights in red);
 * for a grid of two settings, ``map.png`` (of three: ``map_<third>_<level>.png``, one per
@@ -21,6 +23,7 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
+from heli_sitl import stats
 from heli_sitl.campaign.spec import METRICS, CampaignSpec
 
 #: the metrics that are numbers (the rest are flags and text)
@@ -43,6 +46,8 @@ def summary_rows(spec: CampaignSpec, table: pa.Table) -> list[dict[str, Any]]:
         v = v[np.isfinite(v)]
         if v.size:
             p5, p50, p95 = np.percentile(v, [5, 50, 95])
+            c50 = stats.percentile_ci(v, 50, seed=spec.seed)
+            c95 = stats.percentile_ci(v, 95, seed=spec.seed)
             rows.append(
                 {
                     "metric": m,
@@ -51,12 +56,14 @@ def summary_rows(spec: CampaignSpec, table: pa.Table) -> list[dict[str, Any]]:
                     "p50": float(p50),
                     "p95": float(p95),
                     "max": float(v.max()),
+                    "p50_ci": [c50.lo, c50.hi],
+                    "p95_ci": [c95.lo, c95.hi],
                 }
             )
         else:
-            rows.append(
-                {"metric": m, "n": 0, "p5": math.nan, "p50": math.nan, "p95": math.nan, "max": math.nan}
-            )
+            nan2 = [math.nan, math.nan]
+            rows.append({"metric": m, "n": 0, "p5": math.nan, "p50": math.nan, "p95": math.nan,
+                         "max": math.nan, "p50_ci": nan2, "p95_ci": nan2})  # fmt: skip
     return rows
 
 
@@ -77,21 +84,35 @@ def counts(table: pa.Table) -> dict[str, Any]:
         if "diverged_reason" in table.column_names:
             reasons = [r for r, d in zip(table.column("diverged_reason").to_pylist(), div, strict=True) if d]
             out["diverged_by_reason"] = {r: reasons.count(r) for r in sorted(set(reasons))}
+        flown = out["flights"] - out["failed"]
+        if flown > 0:
+            rate = stats.loss_rate(out["diverged"], flown)
+            out["loss_rate"] = {"estimate": rate.estimate, "ci95": [rate.lo, rate.hi]}
     return out
 
 
 def format_table(rows: list[dict[str, Any]], c: dict[str, Any]) -> str:
-    lines = [f"{'metric':24s} {'n':>6s} {'p5':>10s} {'p50':>10s} {'p95':>10s} {'max':>10s}"]
+    lines = [f"{'metric':24s} {'n':>6s} {'p5':>10s} {'p50 [95 % interval]':>30s} "
+             f"{'p95 [95 % interval]':>30s} {'max':>10s}"]  # fmt: skip
+
+    def ci(v: float, c: list[float]) -> str:
+        return f"{v:.4g} [{c[0]:.4g}, {c[1]:.4g}]"
+
     for r in rows:
         lines.append(
-            f"{r['metric']:24s} {r['n']:6d} {r['p5']:10.4g} {r['p50']:10.4g} {r['p95']:10.4g} "
-            f"{r['max']:10.4g}"
+            f"{r['metric']:24s} {r['n']:6d} {r['p5']:10.4g} {ci(r['p50'], r['p50_ci']):>30s} "
+            f"{ci(r['p95'], r['p95_ci']):>30s} {r['max']:10.4g}"
         )
     conv = f", converged {c['converged']}" if "converged" in c else ""
     why = "; ".join(f"{k}: {v}" for k, v in c.get("diverged_by_reason", {}).items())
+    loss = ""
+    if "loss_rate" in c:
+        lr = c["loss_rate"]
+        loss = (f"; loss rate {100 * lr['estimate']:.2f} % [{100 * lr['ci95'][0]:.2f}, "
+                f"{100 * lr['ci95'][1]:.2f}] % (95 %, exact)")  # fmt: skip
     lines.append(
         f"flights {c['flights']}, failed {c['failed']}{conv}, diverged {c.get('diverged', 0)}"
-        + (f" ({why})" if why else "")
+        + (f" ({why})" if why else "") + loss
     )
     return "\n".join(lines)
 

@@ -1,0 +1,101 @@
+"""Intervals for what campaigns and comparisons claim: a loss rate, a median, a 95th percentile,
+a paired difference. Pure functions over arrays; every random draw from a given seed.
+
+* :func:`loss_rate`: the Clopper-Pearson (exact binomial) interval: 0 lost of 1000 is a rate
+  in [0, 0.37 %] at 95 %, not "zero";
+* :func:`percentile_ci`: the percentile bootstrap of a percentile (Efron & Tibshirani 1993,
+  ch. 13), resampling the flights;
+* :func:`paired`: two contenders flown on the same samples: the bootstrap interval of the
+  median of the per-sample differences and the Wilcoxon signed-rank test (scipy) of them.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+from scipy import stats as sps
+
+CONFIDENCE = 0.95
+N_BOOT = 2000
+
+
+@dataclass(frozen=True)
+class Interval:
+    """An estimate and its two-sided interval at ``confidence``."""
+
+    estimate: float
+    lo: float
+    hi: float
+    confidence: float = CONFIDENCE
+
+    def __str__(self) -> str:
+        return f"{self.estimate:.4g} [{self.lo:.4g}, {self.hi:.4g}]"
+
+    def pct(self) -> str:
+        """As percentages (a rate)."""
+        return f"{100 * self.estimate:.2f} % [{100 * self.lo:.2f}, {100 * self.hi:.2f}] %"
+
+
+def loss_rate(lost: int, flights: int, confidence: float = CONFIDENCE) -> Interval:
+    """``lost`` of ``flights`` as a rate with its exact (Clopper-Pearson) interval."""
+    if flights <= 0 or not 0 <= lost <= flights:
+        raise ValueError(f"need 0 <= lost <= flights and flights > 0, got {lost} of {flights}")
+    a = 1.0 - confidence
+    lo = 0.0 if lost == 0 else float(sps.beta.ppf(a / 2, lost, flights - lost + 1))
+    hi = 1.0 if lost == flights else float(sps.beta.ppf(1 - a / 2, lost + 1, flights - lost))
+    return Interval(lost / flights, lo, hi, confidence)
+
+
+def _finite(values: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    v = np.asarray(values, dtype=np.float64)
+    out: npt.NDArray[np.float64] = v[np.isfinite(v)]
+    return out
+
+
+def percentile_ci(
+    values: npt.ArrayLike, q: float, seed: int = 0, confidence: float = CONFIDENCE, n_boot: int = N_BOOT
+) -> Interval:
+    """The ``q``-th percentile (0-100) of the finite ``values`` and its bootstrap interval."""
+    v = _finite(values)
+    if v.size == 0:
+        return Interval(math.nan, math.nan, math.nan, confidence)
+    rng = np.random.default_rng(seed)
+    boots = np.percentile(v[rng.integers(0, v.size, (n_boot, v.size))], q, axis=1)
+    a = 100.0 * (1.0 - confidence) / 2
+    lo, hi = np.percentile(boots, [a, 100.0 - a])
+    return Interval(float(np.percentile(v, q)), float(lo), float(hi), confidence)
+
+
+@dataclass(frozen=True)
+class Paired:
+    """Contender A against B on the same samples (only where both are finite)."""
+
+    n: int
+    median_a: Interval
+    median_b: Interval
+    median_diff: Interval  # of a - b per sample
+    wilcoxon_p: float  # two-sided signed-rank test of a - b; nan when every difference is 0
+    a_better_fraction: float  # of samples where a < b (lower is better)
+
+
+def paired(a: npt.ArrayLike, b: npt.ArrayLike, seed: int = 0, confidence: float = CONFIDENCE) -> Paired:
+    x, y = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    if x.shape != y.shape:
+        raise ValueError(f"paired samples need the same shape, got {x.shape} and {y.shape}")
+    ok = np.isfinite(x) & np.isfinite(y)
+    x, y = x[ok], y[ok]
+    d = x - y
+    p = math.nan
+    if d.size and np.any(d != 0.0):
+        p = float(sps.wilcoxon(d).pvalue)
+    return Paired(
+        n=int(d.size),
+        median_a=percentile_ci(x, 50, seed, confidence),
+        median_b=percentile_ci(y, 50, seed, confidence),
+        median_diff=percentile_ci(d, 50, seed, confidence),
+        wilcoxon_p=p,
+        a_better_fraction=float(np.mean(d < 0.0)) if d.size else math.nan,
+    )

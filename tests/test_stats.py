@@ -1,0 +1,46 @@
+"""Intervals (heli_sitl.stats) against their known answers."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from heli_sitl.stats import loss_rate, paired, percentile_ci
+
+
+def test_zero_lost_of_1000_is_not_zero() -> None:
+    """The exact interval of 0/1000 is [0, 0.368 %] (the "rule of three" says about 0.3 %)."""
+    r = loss_rate(0, 1000)
+    assert r.estimate == 0.0 and r.lo == 0.0
+    assert r.hi == pytest.approx(1 - 0.025 ** (1 / 1000), rel=1e-9)  # closed form for k = 0
+    assert 0.00366 < r.hi < 0.00370
+    # 3 of 1000 against 0 of 1000: the intervals overlap, so that difference alone is not significant
+    assert loss_rate(3, 1000).lo < r.hi
+
+
+def test_loss_rate_refuses_impossible_counts() -> None:
+    with pytest.raises(ValueError, match="lost <= flights"):
+        loss_rate(5, 3)
+
+
+def test_bootstrap_interval_of_a_median_covers_and_shrinks() -> None:
+    rng = np.random.default_rng(0)
+    small = percentile_ci(rng.normal(1.0, 1.0, 100), 50, seed=1)
+    large = percentile_ci(rng.normal(1.0, 1.0, 2000), 50, seed=1)
+    assert small.lo < 1.0 < small.hi and large.lo < 1.0 < large.hi
+    # the width goes as 1/sqrt(n): 2*1.96*1.2533/sqrt(n) for a normal median, 0.49 at 100, 0.11 at 2000
+    assert 0.3 < small.hi - small.lo < 0.65
+    assert 0.07 < large.hi - large.lo < 0.15
+    assert percentile_ci([1.0, np.nan, 2.0, 3.0], 50).estimate == 2.0  # NaN (a lost flight) left out
+
+
+def test_paired_test_finds_a_small_consistent_difference() -> None:
+    rng = np.random.default_rng(3)
+    base = rng.lognormal(0.0, 1.0, 300)
+    p = paired(base * 0.95, base)  # 5 % better on every sample: hidden in the spread, not in the pairs
+    assert p.n == 300 and p.a_better_fraction == 1.0
+    assert p.wilcoxon_p < 1e-10
+    assert p.median_diff.hi < 0.0
+    assert p.median_a.lo < p.median_b.estimate < p.median_a.hi  # the unpaired intervals overlap
+    same = paired(base, base + rng.normal(0.0, 0.01, 300))
+    assert same.wilcoxon_p > 0.01
