@@ -96,7 +96,7 @@ def _tune(args: argparse.Namespace) -> int:
     from autopilot.pid.gains import PidGains
     from autopilot.scenario import Scenario
     from heli_sitl.compare import command_line
-    from heli_sitl.tune import tune, write_gains
+    from heli_sitl.tune import MarginConstraint, tune, write_gains
 
     scenario = Scenario.load(args.scenario, gains=args.gains if args.controller == "tlc" else None)
     start = PidGains.load(args.gains) if args.controller == "pid" and args.gains else None
@@ -107,7 +107,11 @@ def _tune(args: argparse.Namespace) -> int:
             last[0] = n
             print(f"  {n} evaluations, best cost {best:.4f} m", flush=True)
 
-    r = tune(scenario, args.controller, args.budget, args.feedforward, start, progress)
+    constraint = None
+    if args.min_disk_margin is not None:
+        constraint = MarginConstraint(args.min_disk_margin, args.margin_plant, args.margin_servos)
+    r = tune(scenario, args.controller, args.budget, args.feedforward, start, progress, seed=args.seed,
+             plant=args.plant, constraint=constraint)  # fmt: skip
     print(f"{args.controller}: cost {r.cost(r.start_flights):.4f} m -> {r.cost(r.best_flights):.4f} m "
           f"in {r.evaluations} evaluations, {r.wall_s:.0f} s")  # fmt: skip
     print(f"{'knob':34s} {'start':>10s} {'tuned':>10s}")
@@ -438,6 +442,13 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--gains", default=None, metavar="FILE", help="start from these gains (default: shipped)")
     t.add_argument("--feedforward", choices=("pseudo", "exact"), default=None,
                    help="the TLC's feed-forward (default: the scenario's)")
+    t.add_argument("--plant", default="paper", metavar="paper|gavrilets|FILE", help="the plant flown")
+    t.add_argument("--seed", type=int, default=1, help="the optimiser's seed (run several: the spread)")
+    t.add_argument("--min-disk-margin", type=float, default=None, metavar="ALPHA",
+                   help="reject candidates whose closed loop has a smaller disk margin at any break "
+                        "point (0.66: +/- 6 dB, +/- 36 deg); default: no constraint")
+    t.add_argument("--margin-plant", default="gavrilets", help="the constraint's plant")
+    t.add_argument("--margin-servos", default="servos-default", help="the constraint's servos (a preset)")
     t.add_argument("--quiet", action="store_true")
     t.set_defaults(func=_tune)
 

@@ -25,6 +25,15 @@ same budget under the same limits. :func:`tune` is that procedure:
   cost evaluations, global enough for the rough landscape servo saturation makes, then
   Nelder-Mead (adaptive) from its best point for the rest.
 
+* **Robustness constraint** (``--min-disk-margin``, off by default): before a candidate flies,
+  its whole closed loop is linearised at hover on the constraint's plant with its servos
+  (:mod:`heli_sitl.loop_linear`, default the rotor plant with the default servos); a candidate
+  whose worst disk margin over every loop break point is below the bound costs
+  ``CONSTRAINT_COST_M`` plus ten times the shortfall (so the optimiser still sees the way to
+  feasibility) and does not fly. 0.66 is +/- 6 dB and +/- 36 deg.
+* **Seeds**: ``--seed`` sets the optimiser's; run several and compare their costs (the spread
+  says how much of a result is the optimiser's luck).
+
 ``heli-sitl tune --controller pid|tlc`` runs it and writes the gains file; docs/comparison.md
 gives the procedure, the budget and what it found.
 """
@@ -42,15 +51,19 @@ from typing import Any
 import numpy as np
 from scipy.optimize import differential_evolution, minimize
 
+from autopilot.controllers import build_controller
 from autopilot.pid.gains import PidGains, default_pid_gains
 from autopilot.scenario import Scenario
 from heli_common.config import as_table, build, to_toml
+from heli_common.plant_model import PlantModel
 from heli_common.world import World
 from heli_sitl.closed_loop import SimOptions, simulate
+from heli_sitl.loop_linear import linearize_loop, servo_model
 
 #: the worlds every candidate flies ("" is the paper's ideal world)
 TUNING_WORLDS = ("", "servos-default", "everything")
 DIVERGED_COST_M = 100.0
+CONSTRAINT_COST_M = 50.0  # plus 10 m per unit of disk margin short: below DIVERGED_COST_M
 SPAN = 10.0  # a log knob's range: its start / SPAN to its start x SPAN
 SATURATION_WEIGHT_M = 1.0
 
@@ -181,21 +194,50 @@ class TuneResult:
     evaluations: int
     wall_s: float
     history: list[float] = field(default_factory=list)  # best cost after each evaluation
+    seed: int = 1
+    plant: str = "paper"
+    constraint: MarginConstraint | None = None
+    rejected: int = 0  # candidates the constraint kept from flying
 
     @staticmethod
     def cost(flights: Sequence[FlightCost]) -> float:
         return max(f.cost_m for f in flights)
 
 
+@dataclass(frozen=True)
+class MarginConstraint:
+    """Every loop break point's disk margin >= ``min_disk`` on ``plant`` with ``servos``."""
+
+    min_disk: float = 0.66  # +/- 6 dB, +/- 36 deg
+    plant: str = "gavrilets"
+    servos: str = "servos-default"
+
+    def shortfall(self, scenario: Scenario, controller: str, gains: Any) -> float:
+        """How far the candidate's worst disk margin is below the bound (0: it holds)."""
+        pid = gains if controller == "pid" else None
+        tlc = scenario.gains if controller == "pid" else gains
+        c = build_controller(controller, scenario.airframe, tlc, scenario.run.rate_hz, pid_gains=pid)
+        name, sv = servo_model(self.servos)
+        try:
+            lin = linearize_loop(c, PlantModel.load(self.plant), scenario.airframe, sv, name)
+        except ValueError:  # no hover equilibrium: as bad as an unstable loop
+            return self.min_disk
+        return max(0.0, self.min_disk - lin.worst().disk_margin)
+
+
 class Tuner:
     """The cost of a candidate (the worst of its flights); counts evaluations."""
 
     def __init__(self, scenario: Scenario, controller: str, feedforward: str, base_gains: Any,
-                 knobs: Sequence[Knob], worlds: Sequence[str] = TUNING_WORLDS) -> None:  # fmt: skip
+                 knobs: Sequence[Knob], worlds: Sequence[str] = TUNING_WORLDS,
+                 plant: str = "paper", constraint: MarginConstraint | None = None) -> None:  # fmt: skip
         self.scenario, self.controller, self.feedforward = scenario, controller, feedforward
         self.base, self.knobs = base_gains, tuple(knobs)
         self.worlds = [(w, World.load(w) if w else None) for w in worlds]
+        self.plant = PlantModel.load(plant)
+        self.constraint = constraint
         self.evaluations = 0
+        self.rejected = 0  # candidates the constraint kept from flying
         self.history: list[float] = []
 
     def flights(self, values: Sequence[float]) -> tuple[FlightCost, ...]:
@@ -204,14 +246,23 @@ class Tuner:
         out = []
         for name, world in self.worlds:
             opts = SimOptions(world=world, feedforward=self.feedforward, controller=self.controller,
-                              pid_gains=gains if self.controller == "pid" else None)  # fmt: skip
+                              pid_gains=gains if self.controller == "pid" else None,
+                              plant=self.plant)  # fmt: skip
             out.append(flight_cost(sc, opts, name or "ideal"))
         return tuple(out)
 
     def __call__(self, u: np.ndarray) -> float:
         values = [k.from_unit(float(x)) for k, x in zip(self.knobs, u, strict=True)]
         try:
-            cost = TuneResult.cost(self.flights(values))
+            short = 0.0
+            if self.constraint is not None:
+                short = self.constraint.shortfall(self.scenario, self.controller,
+                                                  with_knobs(self.base, self.knobs, values))  # fmt: skip
+            if short > 0.0:
+                self.rejected += 1
+                cost = CONSTRAINT_COST_M + 10.0 * short
+            else:
+                cost = TuneResult.cost(self.flights(values))
         except ValueError:  # a candidate the loader refuses (outside a gain's range)
             cost = DIVERGED_COST_M
         self.evaluations += 1
@@ -227,6 +278,8 @@ def tune(
     start: Any = None,
     progress: Callable[[int, float], None] | None = None,
     seed: int = 1,
+    plant: str = "paper",
+    constraint: MarginConstraint | None = None,
 ) -> TuneResult:
     """Tune ``controller`` ("tlc" or "pid") from ``start`` (default: the scenario's gains or
     configs/gains_pid.toml) with ``budget`` cost evaluations."""
@@ -235,7 +288,7 @@ def tune(
     ff = feedforward or scenario.run.feedforward
     base = start if start is not None else (default_pid_gains() if controller == "pid" else scenario.gains)
     knobs = pid_knobs(base) if controller == "pid" else tlc_knobs(base)
-    tuner = Tuner(scenario, controller, ff, base, knobs)
+    tuner = Tuner(scenario, controller, ff, base, knobs, plant=plant, constraint=constraint)
     x0 = np.array([k.to_unit(_get(base, k)) for k in knobs])
     t0 = time.perf_counter()
 
@@ -265,7 +318,7 @@ def tune(
     return TuneResult(
         controller, ff, knobs, start_values, best, with_knobs(base, knobs, best),
         tuner.flights(start_values), tuner.flights(best), tuner.evaluations, time.perf_counter() - t0,
-        tuner.history,
+        tuner.history, seed, plant, constraint, tuner.rejected,
     )  # fmt: skip
 
 
@@ -281,8 +334,13 @@ def gains_toml(result: TuneResult, command: str) -> str:
         "# configs/world/everything.toml; cost = the worst flight's RMS error from 10 s + 1 m x",
         "# its saturated fraction.",
         f"# Command: {command}",
+        f"# Plant {result.plant}, optimiser seed {result.seed}.",
         f"# Cost {before:.4f} m -> {after:.4f} m in {result.evaluations} evaluations.",
     ]
+    if result.constraint is not None:
+        c = result.constraint
+        lines.append(f"# Constraint: disk margin >= {c.min_disk} at every loop break point on the {c.plant} "
+                     f"plant with {c.servos} ({result.rejected} candidates rejected unflown).")  # fmt: skip
     lines += [f"#   {f.describe()}" for f in result.best_flights]
     return "\n".join(lines) + "\n" + to_toml(t)
 

@@ -17,7 +17,18 @@ from autopilot.scenario import Scenario
 from heli_common.config import ConfigError
 from heli_sitl.closed_loop import SimOptions, simulate
 from heli_sitl.compare import Contender, largest_converged, load_compare, run_compare
-from heli_sitl.tune import Knob, Tuner, pid_knobs, tlc_knobs, tune, with_knobs, write_gains
+from heli_sitl.tune import (
+    CONSTRAINT_COST_M,
+    Knob,
+    MarginConstraint,
+    Tuner,
+    _get,
+    pid_knobs,
+    tlc_knobs,
+    tune,
+    with_knobs,
+    write_gains,
+)
 
 
 @given(st.floats(0.0, 1.0), st.booleans())
@@ -55,6 +66,24 @@ def test_the_cost_is_the_worst_flight_and_the_flights_are_the_simulator_s() -> N
     assert flights[0].rms_10_m == pytest.approx(rec.summary()["rms_pos_err_m"]["10-120"], rel=1e-9)
     cost = tuner(np.array([k.to_unit(v) for k, v in zip(knobs, start, strict=True)]))
     assert cost == max(f.cost_m for f in flights)
+
+
+def test_the_margin_constraint_keeps_fragile_candidates_from_flying() -> None:
+    """Table 2 on the rotor plant has no margin at all (its loop is unstable): the constraint
+    prices it at 50 m + 10 x 0.66 unflown; the rotor-aware set (worst disk margin 0.69)
+    passes and flies its three flights on the rotor plant."""
+    con = MarginConstraint(0.66, "gavrilets", "servos-default")
+    for gains, rejected in (("gains_paper.toml", True), ("gains_tlc_rotor.toml", False)):
+        sc = Scenario.load("paper", gains=gains)
+        knobs = tlc_knobs(sc.gains)
+        tuner = Tuner(sc, "tlc", "pseudo", sc.gains, knobs, plant="gavrilets", constraint=con)
+        u = np.array([k.to_unit(_get(sc.gains, k)) for k in knobs])
+        cost = tuner(u)
+        assert tuner.rejected == int(rejected)
+        if rejected:
+            assert cost == pytest.approx(CONSTRAINT_COST_M + 10.0 * 0.66, abs=0.01)
+        else:
+            assert cost < 1.0  # the worst of its flights: "everything", 0.1 m RMS from 10 s
 
 
 @pytest.mark.slow
