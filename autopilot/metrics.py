@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -106,7 +107,7 @@ class FlightRecord:
             m = self.window(t0, end)
             if m.any():
                 key = f"{t0:g}-{end:g}"
-                rms[key] = float(np.sqrt(np.mean(err[m] ** 2)))
+                rms[key] = window_rms_m(self, t0, end)
                 mx[key] = float(np.max(err[m]))
         jump = self.window(40.0, 45.0) if self.extra.get("scenario") == "paper" else np.zeros(0, bool)
         duration = float(self.t_s[-1] - self.t_s[0])
@@ -241,6 +242,15 @@ class FlightRecord:
         s = self.summary()
         path.write_text(json.dumps(s, indent=2) + "\n")
         return s
+
+
+def window_rms_m(record: FlightRecord, t0_s: float, t1_s: float) -> float:
+    """RMS 3-D position error [m] over [t0_s, t1_s] of trajectory time (the summary's
+    windows, a scenario's ``error_windows_s``); NaN when no tick falls in the window."""
+    m = record.window(t0_s, t1_s)
+    if not m.any():
+        return math.nan
+    return float(np.sqrt(np.mean(record.pos_err_m[m] ** 2)))
 
 
 def rotor_record(truth: FloatArray) -> FloatArray:

@@ -1,4 +1,5 @@
-"""A scenario: airframe, gains, trajectory, initial state, duration, rate, feedforward mode."""
+"""A scenario: airframe, gains, trajectory, initial state, duration, rate, feedforward mode,
+its own error windows."""
 
 from __future__ import annotations
 
@@ -23,6 +24,16 @@ class Run:
     rate_hz: float = spec("Hz", 50.0, 1000.0, default=100.0)
     feedforward: str = spec(choices=("pseudo", "exact"), default="pseudo")
     plant_substeps: int = spec("", 1, 1000, default=1)
+    # the scenario's own error windows, [t0, t1] pairs of trajectory time [s] (e.g. the
+    # transient after a step, then the steady state), for whoever scores its flights:
+    # autopilot.metrics.window_rms_m(record, t0, t1) each. Optional (none by default); a
+    # window past the flown end is measured over the ticks it has (NaN if none)
+    error_windows_s: tuple[tuple[float, float], ...] = spec("s", 0.0, 1e5, default=())
+
+    def __post_init__(self) -> None:
+        for t0, t1 in self.error_windows_s:
+            if not t0 < t1:
+                raise ValueError(f"error_windows_s: a window [t0, t1] needs t0 < t1, got [{t0}, {t1}]")
 
 
 @dataclass(frozen=True)

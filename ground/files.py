@@ -23,8 +23,9 @@ Four inputs, chosen by the file name's extension (:func:`load_mission`):
   plus that class's parameters, built by :func:`autopilot.trajectory.factory.trajectory_from_table`)
   and an optional ``[encoding]`` table (``dt_s``, default 0.5 s, the step the codec's
   fidelity study recommends; ``breaks_s``, the corner times, default ``[climb_end_s]`` for
-  the paper's spiral). A scenario file (``configs/scenario_paper.toml``) is accepted as is:
-  its other tables are for the simulator and are ignored here.
+  the paper's spiral, the arc's ends for an ``arc_turn``). A scenario file
+  (``configs/scenario_paper.toml``) is accepted as is: its other tables are for the
+  simulator and are ignored here.
 * ``.csv``: timed trajectory samples ``t,x,y,z[,yaw]`` (header required; seconds from the
   start, NWU metres about home, yaw NWU radians), interpolated by the vehicle with cubic
   splines.
@@ -52,6 +53,7 @@ import numpy.typing as npt
 from autopilot import trajectory_codec as codec
 from autopilot.trajectory.analytic import PaperSpiralCircle
 from autopilot.trajectory.factory import trajectory_from_table
+from autopilot.trajectory.manoeuvres import ArcTurn
 from heli_common.config import ConfigError
 from heli_common.geo import GeoPoint
 from heli_common.mavlink import mission_items as ms
@@ -443,6 +445,8 @@ def _default_breaks(traj: object) -> list[float]:
     """The corners a known trajectory has (the spline must not smooth them away)."""
     if isinstance(traj, PaperSpiralCircle) and 0.0 < traj.climb_end_s < traj.duration_s:
         return [traj.climb_end_s]
+    if isinstance(traj, ArcTurn):  # the arc's ends, where the lateral acceleration steps
+        return [b for b in (traj.turn_start_s, traj.turn_end_s) if 0.0 < b < traj.duration_s]
     return []
 
 

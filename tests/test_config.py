@@ -200,7 +200,8 @@ def test_scenario_copy_loads(scenario_dir: Path) -> None:
             'kind = "paper_spiral_circle"',
             'kind = "spiral"',
             "trajectory.kind",
-            "expected one of paper_spiral_circle, straight_line, got 'spiral'",
+            "expected one of paper_spiral_circle, straight_line, figure_eight, arc_turn, position_step, "
+            "got 'spiral'",
         ),
         ("radius_m = 10.0", "radius = 10.0", "trajectory", "did you mean 'radius_m'?"),
         (

@@ -7,11 +7,15 @@ from typing import Any
 
 from autopilot.trajectory.analytic import PaperSpiralCircle, StraightLine
 from autopilot.trajectory.base import Trajectory
+from autopilot.trajectory.manoeuvres import ArcTurn, FigureEight, PositionStep
 from heli_common.config import ConfigError, build
 
 KINDS: dict[str, type[Trajectory]] = {
     "paper_spiral_circle": PaperSpiralCircle,
     "straight_line": StraightLine,
+    "figure_eight": FigureEight,
+    "arc_turn": ArcTurn,
+    "position_step": PositionStep,
 }
 
 

@@ -93,8 +93,9 @@ class _Leg:
     seq: int
 
 
-def _leg_profile(length_m: float, speed_cap_m_s: float, max_acc_m_s2: float) -> tuple[float, float, float]:
-    """(V, T_ramp, duration) of the rest-to-rest profile over ``length_m``."""
+def leg_profile(length_m: float, speed_cap_m_s: float, max_acc_m_s2: float) -> tuple[float, float, float]:
+    """(V, T_ramp, duration) of the rest-to-rest profile over ``length_m`` (the shaping of a
+    switch between two waypoints; :func:`rest_to_rest` samples it)."""
     if length_m <= 0.0:
         return 0.0, 0.0, 0.0
     v = speed_cap_m_s
@@ -103,6 +104,43 @@ def _leg_profile(length_m: float, speed_cap_m_s: float, max_acc_m_s2: float) -> 
         v = math.sqrt(max_acc_m_s2 * length_m / RAMP_ACC_FACTOR)
         ramp = RAMP_ACC_FACTOR * v / max_acc_m_s2
     return v, ramp, 2.0 * ramp + (length_m - v * ramp) / v
+
+
+Profile = tuple[FloatArray, FloatArray, FloatArray]  # distance [m], speed [m/s], acceleration [m/s^2]
+Number = FloatArray | float
+
+
+def smootherstep(w: FloatArray, v: Number, ramp_s: Number) -> Profile:
+    """The quintic ramp from rest to ``v`` over ``ramp_s`` at ``w = tau / ramp_s`` in [0, 1]:
+    distance s = V T w^4 (5/2 - 3 w + w^2), speed V (10 w^3 - 15 w^4 + 6 w^5), acceleration
+    (V / T) 30 w^2 (1 - w)^2 (zero at both ends, peak ``RAMP_ACC_FACTOR V / T`` at w = 1/2)."""
+    s = v * ramp_s * w**4 * (2.5 - 3.0 * w + w * w)
+    vel = v * w**3 * (10.0 - 15.0 * w + 6.0 * w * w)
+    acc = v / ramp_s * 30.0 * w * w * (1.0 - w) ** 2
+    return s, vel, acc
+
+
+def rest_to_rest(
+    tau_s: FloatArray, duration_s: Number, ramp_s: Number, v_m_s: Number, length_m: Number
+) -> Profile:
+    """Distance along a leg [m], speed [m/s] and acceleration [m/s^2] at ``tau_s`` from its
+    start (clipped to the leg): the :func:`smootherstep` ramp up on [0, T_ramp], a cruise at
+    V, the mirror image on [duration - T_ramp, duration]; all zero for a hold (T_ramp = 0).
+    The profile of :func:`leg_profile`; arrays broadcast together."""
+    dur, ramp, v, length = duration_s, ramp_s, v_m_s, length_m
+    tau = np.clip(tau_s, 0.0, dur)
+    moving = ramp > 0.0
+    safe_ramp = np.where(moving, ramp, 1.0)
+    up = tau < ramp
+    down = tau > dur - ramp
+    w = np.where(up, tau, np.where(down, dur - tau, ramp)) / safe_ramp
+    w = np.clip(w, 0.0, 1.0)
+    s_ramp, v_ramp, a_ramp = smootherstep(w, v, safe_ramp)
+    s = np.where(up, s_ramp, np.where(down, length - s_ramp, 0.5 * v * ramp + v * (tau - ramp)))
+    vel = np.where(up | down, v_ramp, v)
+    acc = np.where(up, a_ramp, np.where(down, -a_ramp, 0.0))
+    s, vel, acc = (np.where(moving, q, 0.0) for q in (s, vel, acc))
+    return s, vel, acc
 
 
 class WaypointTrajectory(Trajectory):
@@ -139,22 +177,7 @@ class WaypointTrajectory(Trajectory):
             out[:, 0:3] = self._start
             return out
         k = np.clip(np.searchsorted(self._t0, t, side="right") - 1, 0, len(self._legs) - 1)
-        dur, ramp, v, length = self._dur[k], self._ramp[k], self._v[k], self._len[k]
-        tau = np.clip(t - self._t0[k], 0.0, dur)
-        moving = ramp > 0.0
-        safe_ramp = np.where(moving, ramp, 1.0)
-        # Ramp up on [0, T_ramp], cruise, then the mirror image on [dur - T_ramp, dur].
-        up = tau < ramp
-        down = tau > dur - ramp
-        w = np.where(up, tau, np.where(down, dur - tau, ramp)) / safe_ramp
-        w = np.clip(w, 0.0, 1.0)
-        s_ramp = v * safe_ramp * w**4 * (2.5 - 3.0 * w + w * w)
-        v_ramp = v * w**3 * (10.0 - 15.0 * w + 6.0 * w * w)
-        a_ramp = v / safe_ramp * 30.0 * w * w * (1.0 - w) ** 2
-        s = np.where(up, s_ramp, np.where(down, length - s_ramp, 0.5 * v * ramp + v * (tau - ramp)))
-        vel = np.where(up | down, v_ramp, v)
-        acc = np.where(up, a_ramp, np.where(down, -a_ramp, 0.0))
-        s, vel, acc = (np.where(moving, q, 0.0) for q in (s, vel, acc))
+        s, vel, acc = rest_to_rest(t - self._t0[k], self._dur[k], self._ramp[k], self._v[k], self._len[k])
         d = self._dir[k]
         out[:, 0:3] = self._p0[k] + s[:, None] * d
         out[:, 3:6] = vel[:, None] * d
@@ -206,7 +229,7 @@ class _Builder:
         if vertical > 0.0:
             vz = lim.climb_speed_m_s if u[2] > 0.0 else lim.descent_speed_m_s
             cap = min(cap, vz / vertical)
-        v, ramp, dur = _leg_profile(length, cap, lim.max_acc_m_s2)
+        v, ramp, dur = leg_profile(length, cap, lim.max_acc_m_s2)
         self.legs.append(_Leg(self.t, dur, _vec(self.pos), _vec(u), length, v, ramp, seq))
         self.t += dur
         self.pos = target_nwu_m.copy()
