@@ -10,6 +10,7 @@ all REAL32 (see "Encoding" below):
   TLC_DIFF_W, TLC_DIFF_Z pseudo-differentiator omega [rad/s] and zeta
   TLC_TILT_MAX           tilt command limit [rad]
   TLC_YAW_HOLD_V         hold the yaw command below this horizontal speed [m/s]
+  TLC_MAX_SPEED          loop 1's horizontal correction speed limit [m/s] (0: none)
   TLC_RATE_HZ            control rate [Hz]; settable only while disarmed
   LIM_{TM,TT,EPS,ETA}_{MIN,MAX}  blade pitch limits [rad]; settable only while disarmed
   FS_STATE_TMO           state-link timeout [s] before the failsafe
@@ -187,6 +188,7 @@ def _build_specs() -> tuple[ParamSpec, ...]:
         _real("TLC_DIFF_Z", DifferentiatorGains, "zeta", rw, "pseudo-differentiator zeta"),
         _real("TLC_TILT_MAX", CommandLimits, "tilt_max_rad", rw, "tilt command limit"),
         _real("TLC_YAW_HOLD_V", CommandLimits, "yaw_hold_speed_m_s", rw, "yaw hold below speed"),
+        _real("TLC_MAX_SPEED", CommandLimits, "max_speed_m_s", rw, "correction speed limit (0: none)"),
         ParamSpec("TLC_RATE_HZ", REAL32, *RATE_HZ_RANGE, "Hz", disarmed, "control rate"),
     ]
     for short, field_name in PITCH_FIELDS:
@@ -249,6 +251,7 @@ class ParamTable:
         values["TLC_DIFF_Z"] = gains.differentiator.zeta
         values["TLC_TILT_MAX"] = gains.limits.tilt_max_rad
         values["TLC_YAW_HOLD_V"] = gains.limits.yaw_hold_speed_m_s
+        values["TLC_MAX_SPEED"] = gains.limits.max_speed_m_s
         values["TLC_RATE_HZ"] = rate_hz
         for short, field_name in PITCH_FIELDS:
             lo, hi = getattr(pitch_limits, field_name)
@@ -351,6 +354,7 @@ class ParamTable:
                 self._gains.limits,
                 tilt_max_rad=v["TLC_TILT_MAX"],
                 yaw_hold_speed_m_s=v["TLC_YAW_HOLD_V"],
+                max_speed_m_s=v["TLC_MAX_SPEED"],
             ),
             loop1_position_kinematics=loops[0],
             loop2_position_dynamics=loops[1],

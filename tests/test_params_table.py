@@ -62,8 +62,8 @@ def f32(x: float) -> float:
 
 def test_names_are_unique_short_and_stable() -> None:
     names = [s.name for s in SPECS]
-    # 43 of the vehicle, 30 PID_ of the baseline, 10 SIM_ of the world, 8 of its sensors
-    assert len(names) == len(set(names)) == 91
+    # 44 of the vehicle, 30 PID_ of the baseline, 10 SIM_ of the world, 8 of its sensors
+    assert len(names) == len(set(names)) == 92
     assert all(0 < len(n) <= 16 and n.isascii() and n.upper() == n for n in names)
     assert names[:3] == ["TLC_L1_W_X", "TLC_L1_W_Y", "TLC_L1_W_Z"]
     for required in (
@@ -75,6 +75,7 @@ def test_names_are_unique_short_and_stable() -> None:
         "LIM_ETA_MAX",
         "TLC_TILT_MAX",
         "TLC_YAW_HOLD_V",
+        "TLC_MAX_SPEED",
         "TLC_RATE_HZ",
         "FS_STATE_TMO",
         "FS_OFFB_TMO",

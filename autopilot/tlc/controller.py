@@ -194,14 +194,17 @@ def tlc_kernel(
         dpc[:] = ref[REF_VEL : REF_VEL + 3]
         d2pc[:] = ref[REF_ACC : REF_ACC + 3]
     pe = pc - pos
-    a = dpc + k.w2[0] * s[S_I1 : S_I1 + 3] + k.zw2[0] * pe
     speed_limited = False
-    if k.max_speed_m_s > 0.0:
-        h = math.hypot(a[0], a[1])
+    if k.max_speed_m_s > 0.0:  # the correction's horizontal speed held (the trajectory's is not)
+        fb = k.w2[0] * s[S_I1 : S_I1 + 3] + k.zw2[0] * pe
+        h = math.hypot(fb[0], fb[1])
         if h > k.max_speed_m_s:
-            a[0] *= k.max_speed_m_s / h
-            a[1] *= k.max_speed_m_s / h
+            fb[0] *= k.max_speed_m_s / h
+            fb[1] *= k.max_speed_m_s / h
             speed_limited = True
+        a = dpc + fb
+    else:
+        a = dpc + k.w2[0] * s[S_I1 : S_I1 + 3] + k.zw2[0] * pe
     rt = rot_body_to_earth(gam[0], gam[1], gam[2])
     vc = rt.T @ a
 

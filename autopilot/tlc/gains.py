@@ -26,8 +26,9 @@ class LoopGains:
 class CommandLimits:
     tilt_max_rad: float = spec("rad", 0.01, 1.2)
     yaw_hold_speed_m_s: float = spec("m/s", 0.0, 10.0)
-    # loop 1's horizontal velocity command is held to this (0 = no limit, the paper's): a far
-    # start then flies at this speed instead of tilting to the limit (the PID's max_speed_m_s)
+    # loop 1's horizontal correction (the velocity command beyond the trajectory's own) is held
+    # to this speed (0 = no limit, the paper's): a far start then closes at this speed instead
+    # of tilting to the limit, and a fast trajectory still flies at its own speed
     max_speed_m_s: float = spec("m/s", 0.0, 50.0, default=0.0)
 
 
