@@ -114,6 +114,9 @@ def _tune(args: argparse.Namespace) -> int:
              plant=args.plant, constraint=constraint)  # fmt: skip
     print(f"{args.controller}: cost {r.cost(r.start_flights):.4f} m -> {r.cost(r.best_flights):.4f} m "
           f"in {r.evaluations} evaluations, {r.wall_s:.0f} s")  # fmt: skip
+    if r.best_shortfall > 0.0:
+        print(f"the margin constraint is NOT met: the tuned gains fall {r.best_shortfall:.2f} short "
+              f"({r.rejected} of {r.evaluations} candidates rejected)")  # fmt: skip
     print(f"{'knob':34s} {'start':>10s} {'tuned':>10s}")
     for k, a, b in zip(r.knobs, r.start, r.best, strict=True):
         print(f"{k.name:34s} {a:10.4g} {b:10.4g}")

@@ -198,6 +198,7 @@ class TuneResult:
     plant: str = "paper"
     constraint: MarginConstraint | None = None
     rejected: int = 0  # candidates the constraint kept from flying
+    best_shortfall: float = 0.0  # the tuned gains' disk margin below the constraint (0: met)
 
     @staticmethod
     def cost(flights: Sequence[FlightCost]) -> float:
@@ -315,10 +316,12 @@ def tune(
     # four significant digits: what a gains file should carry (the cost moves in the 6th)
     best = tuple(float(f"{k.from_unit(float(x)):.4g}") for k, x in zip(knobs, res.x, strict=True))
     start_values = tuple(_get(base, k) for k in knobs)
+    tuned = with_knobs(base, knobs, best)
+    short = constraint.shortfall(scenario, controller, tuned) if constraint is not None else 0.0
     return TuneResult(
-        controller, ff, knobs, start_values, best, with_knobs(base, knobs, best),
+        controller, ff, knobs, start_values, best, tuned,
         tuner.flights(start_values), tuner.flights(best), tuner.evaluations, time.perf_counter() - t0,
-        tuner.history, seed, plant, constraint, tuner.rejected,
+        tuner.history, seed, plant, constraint, tuner.rejected, short,
     )  # fmt: skip
 
 
@@ -341,6 +344,9 @@ def gains_toml(result: TuneResult, command: str) -> str:
         c = result.constraint
         lines.append(f"# Constraint: disk margin >= {c.min_disk} at every loop break point on the {c.plant} "
                      f"plant with {c.servos} ({result.rejected} candidates rejected unflown).")  # fmt: skip
+        if result.best_shortfall > 0.0:
+            lines.append(f"# NOT MET: no candidate met it; these gains fall {result.best_shortfall:.2f} "
+                         "short.")  # fmt: skip
     lines += [f"#   {f.describe()}" for f in result.best_flights]
     return "\n".join(lines) + "\n" + to_toml(t)
 
