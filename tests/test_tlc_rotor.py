@@ -160,3 +160,17 @@ def test_lockstep_flies_the_in_process_flight(tmp_path: Path) -> None:
     rms = float(np.sqrt(np.mean(norm**2)))
     print(f"lockstep vs in-process: RMS {rms:.2e} m, max {norm.max():.2e} m")
     assert rms <= 1e-3
+
+
+def test_the_margins_command_prints_what_the_gain_file_states() -> None:
+    import subprocess
+    import sys
+
+    out = subprocess.run(
+        [sys.executable, "-m", "heli_sitl.cli", "margins", "--gains", "gains_tlc_rotor.toml",
+         "--plant", "gavrilets"],
+        capture_output=True, text=True, timeout=300, check=True,
+    ).stdout  # fmt: skip
+    line = out.strip().splitlines()[-1]
+    assert line.startswith("# gavrilets plant, servos servos-default: stable, worst disk margin 0.69")
+    assert line in (Path(__file__).parents[1] / "configs/gains_tlc_rotor.toml").read_text()
