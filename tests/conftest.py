@@ -24,6 +24,7 @@ from heli_sitl.closed_loop import SensingArrays, _run_ticks
 from heli_sitl.plant.model import Plant
 from heli_sitl.plant.rotor import N_ROTOR
 from heli_sitl.plant.rotor import OFF as ROTOR_OFF
+from heli_sitl.plant.trim import PlantFunction
 from heli_sitl.plant.world.model import CalmArrays
 
 # The first call of a compiled function loads (or compiles) it: no per-example deadline.
@@ -121,3 +122,27 @@ def hover_eq(airframe: Airframe, gains: Gains) -> HoverEquilibrium:
     pos = np.array([0.0, 0.0, HOVER_ALT_M])
     f = fly(ctrl.constants, ctrl.state, plant, x0, hover_refs(pos, SETTLE_S))
     return HoverEquilibrium(ctrl, plant, f.x_next, f.u[-1].copy(), hover_refs(pos, 0.0)[0])
+
+
+def integrate_held(
+    fn: PlantFunction, x0: np.ndarray, u: np.ndarray, seconds: float, idx: list[int], h: float = 1e-3
+) -> np.ndarray:
+    """The states ``idx`` over time with every other state held (RK4, step ``h``): the rotor's
+    own dynamics with the body fixed, as a rotor on a test stand."""
+    x = x0.copy()
+    out = [x[idx].copy()]
+
+    def f(z: np.ndarray) -> np.ndarray:
+        y = x.copy()
+        y[idx] = z
+        return np.asarray(fn(y, u)[idx])
+
+    for _ in range(round(seconds / h)):
+        z = x[idx]
+        k1 = f(z)
+        k2 = f(z + 0.5 * h * k1)
+        k3 = f(z + 0.5 * h * k2)
+        k4 = f(z + h * k3)
+        x[idx] = z + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+        out.append(x[idx].copy())
+    return np.array(out)

@@ -83,7 +83,7 @@ def test_the_margin_constraint_keeps_fragile_candidates_from_flying() -> None:
         if rejected:
             assert cost == pytest.approx(CONSTRAINT_COST_M + 10.0 * 0.66, abs=0.01)
         else:
-            assert cost < 1.0  # the worst of its flights: "everything", 0.1 m RMS from 10 s
+            assert 0.2 < cost < 0.33  # the worst of its flights, measured 0.259 m
 
 
 @pytest.mark.slow

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import integrate_held
 from pymavlink import mavutil
 
 from autopilot.scenario import Scenario
@@ -38,32 +39,8 @@ def hover() -> tuple[PlantFunction, np.ndarray, np.ndarray]:
     return PlantFunction.build(GAV, DESIGN), tr.x, tr.u
 
 
-def _integrate_held(
-    fn: PlantFunction, x0: np.ndarray, u: np.ndarray, seconds: float, idx: list[int], h: float = 1e-3
-) -> np.ndarray:
-    """The states ``idx`` over time with every other state held (RK4, step ``h``): the rotor's
-    own dynamics with the body fixed, as a rotor on a test stand."""
-    x = x0.copy()
-    out = [x[idx].copy()]
-
-    def f(z: np.ndarray) -> np.ndarray:
-        y = x.copy()
-        y[idx] = z
-        return np.asarray(fn(y, u)[idx])
-
-    for _ in range(round(seconds / h)):
-        z = x[idx]
-        k1 = f(z)
-        k2 = f(z + 0.5 * h * k1)
-        k3 = f(z + 0.5 * h * k2)
-        k4 = f(z + h * k3)
-        x[idx] = z + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
-        out.append(x[idx].copy())
-    return np.array(out)
-
-
 def _flap_with_body_held(fn: PlantFunction, x0: np.ndarray, u: np.ndarray, seconds: float) -> np.ndarray:
-    return _integrate_held(fn, x0, u, seconds, [A1])[:, 0]
+    return integrate_held(fn, x0, u, seconds, [A1])[:, 0]
 
 
 def test_cyclic_step_gives_first_order_flapping(hover: tuple[PlantFunction, np.ndarray, np.ndarray]) -> None:
@@ -97,7 +74,7 @@ def test_collective_step_droops_the_rotor_and_the_governor_restores_it(
     assert x0[OM] == pytest.approx(167.0, abs=1e-9)
     u = u0.copy()
     u[THETA_M] += 0.03
-    om = _integrate_held(fn, x0, u, 10.0, [OM, N_STATE + rotor.GOV_INT], h=2e-3)[:, 0]
+    om = integrate_held(fn, x0, u, 10.0, [OM, N_STATE + rotor.GOV_INT], h=2e-3)[:, 0]
     droop = 167.0 - om.min()
     t_min = np.argmin(om) * 2e-3
     print(f"droop {droop:.2f} rad/s at {t_min:.2f} s; after 10 s {om[-1]:.4f} rad/s")

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import integrate_held
 
 from autopilot.controllers import build_controller
 from autopilot.scenario import Scenario
@@ -49,23 +50,12 @@ def test_observer_follows_the_plant_flapping_in_open_loop() -> None:
     st[S_FLAP_HAT], st[S_FLAP_HAT + 1] = x[a1], x[b1]
     rng = np.random.default_rng(1)
     worst = 0.0
-    h = DT / 50
     for _ in range(200):
         u[EPS], u[ETA] = rng.uniform(-0.1, 0.1, 2)
         x[P_X], x[Q_Y] = rng.uniform(-1.0, 1.0, 2)
         observe_flapping(r, st, S_FLAP_HAT, u, x[P_X], x[Q_Y])
-        for _ in range(50):  # RK4 on the flapping alone, the body and the rotor speed held
-            def f(z: np.ndarray) -> np.ndarray:
-                y = x.copy()
-                y[[a1, b1]] = z
-                return np.asarray(fn(y, u)[[a1, b1]])
-
-            z = x[[a1, b1]]
-            k1 = f(z)
-            k2 = f(z + 0.5 * h * k1)
-            k3 = f(z + 0.5 * h * k2)
-            k4 = f(z + h * k3)
-            x[[a1, b1]] = z + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+        # the plant's flapping alone, the body and the rotor speed held (RK4, 50 steps a tick)
+        x[[a1, b1]] = integrate_held(fn, x, u, DT, [a1, b1], h=DT / 50)[-1]
         worst = max(worst, abs(st[S_FLAP_HAT] - x[a1]), abs(st[S_FLAP_HAT + 1] - x[b1]))
     # 2.7e-5 rad against flapping of 0.1 rad: the only term the observer leaves out is the
     # blowback of the hub's own velocity (q h_m, p h_m) in hover; a 5 % error in tau_e is 1e-3
@@ -143,6 +133,18 @@ def test_the_paper_tlc_is_unchanged_by_the_rotor_aware_blocks() -> None:
     ref[2] = 10.0
     c.update(0.0, x, ref)
     assert np.all(c.state[S_SENT:] == 0.0)
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "message"),
+    [("design_plant", "paper", "has no rotor"), ("design_plant", "nope.toml", r"gains \[rotor\]: .*nope"),
+     ("servos", "nope", r"gains \[rotor\]: .*nope")],
+)  # fmt: skip
+def test_a_bad_rotor_section_is_refused_with_its_key(field: str, value: str, message: str) -> None:
+    assert GAINS.rotor is not None
+    bad = dataclasses.replace(GAINS, rotor=dataclasses.replace(GAINS.rotor, **{field: value}))
+    with pytest.raises(ValueError, match=message):
+        TLController(DESIGN, bad)
 
 
 @pytest.mark.slow

@@ -37,6 +37,7 @@ from autopilot.tlc.differentiator import DiffCoeffs, diff_reset, diff_step, disc
 from autopilot.tlc.gains import RotorAwareGains
 from heli_common import servo_model
 from heli_common.airframe import Airframe
+from heli_common.config import ConfigError
 from heli_common.jit import njit
 from heli_common.plant_model import PlantModel
 from heli_common.state import EPS, ETA, N_PITCH, FloatArray
@@ -75,7 +76,11 @@ def rotor_aware_constants(g: RotorAwareGains | None, airframe: Airframe, dt_s: f
     """Loop 5's constants from the gains' design plant and servos (off without ``g``)."""
     if g is None:
         return _off(dt_s)
-    model = PlantModel.load(g.design_plant)
+    try:
+        model = PlantModel.load(g.design_plant)
+        servos = design_servos(g.servos)
+    except ConfigError as exc:
+        raise ConfigError(f"gains [rotor]: {exc}") from exc
     if model.rotor is None:
         raise ValueError(f"rotor.design_plant {g.design_plant!r} has no rotor: name a plant file "
                          "with flapping")  # fmt: skip
@@ -83,7 +88,7 @@ def rotor_aware_constants(g: RotorAwareGains | None, airframe: Airframe, dt_s: f
     tau = rp.tau_e_s()
     # the quantum and the dead band are left out of the filter's model: their steps would hide
     # small cyclic moves from the observer, which should see the servo's mean response
-    sv = dataclasses.replace(design_servos(g.servos), quantum_rad=(0.0,) * 4, deadband_rad=(0.0,) * 4)
+    sv = dataclasses.replace(servos, quantum_rad=(0.0,) * 4, deadband_rad=(0.0,) * 4)
     p = servo_model.servo_table(sv, np.array(airframe.limits.as_tuple()), dt_s)
     slots = servo_model.fifo_slots(p)
     if slots > MAX_SERVO_DELAY_TICKS:
