@@ -110,8 +110,9 @@ def _tune(args: argparse.Namespace) -> int:
     constraint = None
     if args.min_disk_margin is not None:
         constraint = MarginConstraint(args.min_disk_margin, args.margin_plant, args.margin_servos)
+    also = [Scenario.load(n, gains=args.gains if args.controller == "tlc" else None) for n in args.also]
     r = tune(scenario, args.controller, args.budget, args.feedforward, start, progress, seed=args.seed,
-             plant=args.plant, constraint=constraint)  # fmt: skip
+             plant=args.plant, constraint=constraint, also=also)  # fmt: skip
     print(f"{args.controller}: cost {r.cost(r.start_flights):.4f} m -> {r.cost(r.best_flights):.4f} m "
           f"in {r.evaluations} evaluations, {r.wall_s:.0f} s")  # fmt: skip
     if r.best_shortfall > 0.0:
@@ -440,8 +441,11 @@ def build_parser() -> argparse.ArgumentParser:
     t = sub.add_parser("tune", help="tune a controller's gains on the paper scenario (docs/comparison.md)")
     t.add_argument("--controller", choices=("tlc", "pid"), required=True)
     t.add_argument("--out", required=True, metavar="FILE", help="the tuned gains (TOML) to write")
-    t.add_argument("--budget", type=arg.count, default=2000, help="cost evaluations (three flights each)")
+    t.add_argument("--budget", type=arg.count, default=2000,
+                   help="cost evaluations (three worlds x each scenario's flights)")
     t.add_argument("--scenario", default="paper")
+    t.add_argument("--also", nargs="*", default=["figure_eight"], metavar="SCENARIO",
+                   help="more trajectories every candidate flies (default: figure_eight; none: --also)")
     t.add_argument("--gains", default=None, metavar="FILE", help="start from these gains (default: shipped)")
     t.add_argument("--feedforward", choices=("pseudo", "exact"), default=None,
                    help="the TLC's feed-forward (default: the scenario's)")

@@ -8,10 +8,12 @@ equilibrium ``z* = F(z*)`` its Jacobian (central differences) gives the closed-l
 eigenvalues (stable iff every ``|lambda| < 1``), and its blocks (controller: measured state ->
 pitches; plant: pitches -> state) the discrete-time loop transfer at each break point: every
 pitch channel at the plant's input, and every measured state the controller reads.
-python-control's :func:`control.disk_margins` gives each break point's balanced disk margin
-(loop-at-a-time: that channel opened, every other closed) and the multivariable margin at
-the plant input. Nothing is approximated but the linearisation itself: the rotor, the thrust
-tilt, the servos' delay and lag, the sampling and the differentiators are all in it.
+Each break point's balanced disk margin (loop-at-a-time: that channel opened, every other
+closed) is computed as python-control's :func:`control.disk_margins` does, on frequency
+responses from one batched solve (tests/test_loop_linear.py holds the two together), and the
+multivariable margin at the plant input beside them. Nothing is approximated but the
+linearisation itself: the rotor, the thrust tilt, the servos' delay and lag, the sampling and
+the differentiators are all in it.
 
 Servos: delay (whole control periods, at most one) and lag linearise exactly; the rate limit,
 quantum and dead band are small-signal inactive and left out (the flights keep them).
@@ -187,36 +189,88 @@ def fixed_point(tm: TickMap, z0: FloatArray) -> tuple[FloatArray, float]:
     return flown if flown[1] < best[1] else best
 
 
-def _ss(a: FloatArray, b: FloatArray, c: FloatArray, d: FloatArray, dt: float) -> ct.StateSpace:
-    return ct.ss(a, b, c, d, dt)
+@dataclass(frozen=True)
+class Discrete:
+    """A discrete-time state-space system ``x+ = a x + b u, y = c x + d u`` (period ``dt``)."""
+
+    a: FloatArray
+    b: FloatArray
+    c: FloatArray
+    d: FloatArray
+    dt: float
+
+    def response(self, omega_rad_s: FloatArray) -> FloatArray:
+        """The frequency response ``(n_w, n_out, n_in)`` at ``z = exp(j omega dt)``: one batched
+        solve (python-control's horner solves one frequency at a time, 40x slower here)."""
+        n = self.a.shape[0]
+        z = np.exp(1j * omega_rad_s * self.dt)
+        if n == 0:
+            return np.broadcast_to(self.d, (z.size, *self.d.shape)).astype(complex)
+        m = z[:, None, None] * np.eye(n) - self.a
+        x = np.linalg.solve(m, np.broadcast_to(self.b, (z.size, *self.b.shape)))
+        return np.asarray(self.c @ x + self.d)
+
+    def to_control(self) -> ct.StateSpace:
+        return ct.ss(self.a, self.b, self.c, self.d, self.dt)
 
 
-def _disk(name: str, loop: ct.StateSpace, stable: bool) -> BreakPoint:
-    if not stable:
-        return BreakPoint(name, 0.0, 0.0, 0.0)
-    dm, dgm_db, dpm_deg = ct.disk_margins(loop, OMEGA_RAD_S)  # python-control gives dB and degrees
-    return BreakPoint(name, float(dm), float(dgm_db), float(dpm_deg))
+@dataclass(frozen=True)
+class LoopBlocks:
+    """The closed loop's two halves about hover: the controller (measured state -> pitches)
+    and the plant with rotor and servos (pitches -> state), and the whole tick's eigenvalues."""
+
+    controller: Discrete
+    plant: Discrete
+    eigenvalues: FloatArray
+
+    @property
+    def stable(self) -> bool:
+        return bool(np.max(np.abs(self.eigenvalues)) < 1.0)
+
+    def loops(self, omega_rad_s: FloatArray = OMEGA_RAD_S) -> tuple[FloatArray, FloatArray]:
+        """The loop transfers ``(n_w, n, n)`` broken at the plant's input (``u -> x -> u``) and
+        at the measurements (``x -> u -> x``), negative feedback convention."""
+        k = self.controller.response(omega_rad_s)
+        p = self.plant.response(omega_rad_s)
+        return -(k @ p), -(p @ k)
 
 
-def linearize_loop(
-    controller: KernelController[Any], model: PlantModel, design: Airframe, servos: Servos,
-    servos_name: str = "",
-) -> LoopLinearization:  # fmt: skip
-    """The closed loop of ``controller`` on ``model`` at hover, with ``servos`` (delay and lag)."""
+def loop_at_a_time(loop: FloatArray, i: int) -> FloatArray:
+    """Channel ``i`` of a square loop ``(n_w, n, n)`` opened, every other closed: the SISO loop
+    ``w -> y_i`` with ``u = w e_i - (y with its i-th entry zeroed)``, i.e.
+    ``[(I + L O)^-1 L]_ii`` with ``O = I - e_i e_i^T``."""
+    n = loop.shape[-1]
+    others = np.eye(n)
+    others[i, i] = 0.0
+    closed = np.linalg.solve(np.eye(n) + loop @ others, loop)
+    return np.asarray(closed[:, i, i])
+
+
+def balanced_disk(name: str, siso: FloatArray) -> BreakPoint:
+    """The balanced (skew 0) disk margin of a SISO loop's frequency response:
+    ``1 / max_w |S - 1/2|``, ``S = 1 / (1 + L)``, as :func:`control.disk_margins` computes it
+    (tests/test_loop_linear.py holds the two together)."""
+    s = 1.0 / (1.0 + siso)
+    return _from_alpha(name, float(1.0 / np.max(np.abs(s - 0.5))))
+
+
+def loop_blocks(
+    controller: KernelController[Any], model: PlantModel, design: Airframe, servos: Servos
+) -> LoopBlocks:
+    """The controller and plant blocks of ``controller`` on ``model`` at hover, with ``servos``."""
     tm, z0 = build_tick_map(controller, model, design, servos)
     z, residual = fixed_point(tm, z0)
     if residual > FIXED_POINT_TOL:
-        raise ValueError(f"{controller.kind} on the {model.kind} plant: no hover equilibrium found "
-                         f"(|F(z) - z| = {residual:.1e})")
+        raise ValueError(
+            f"{controller.kind} on the {model.kind} plant: no hover equilibrium found "
+            f"(|F(z) - z| = {residual:.1e})"
+        )
     jac = _jacobian(tm, z)
     # states the tick only holds (z_i+ = z_i and nothing else: the yaw command of a hover
     # reference, whose every value is an equilibrium) are references, not dynamics
     eye = np.eye(jac.shape[0])
     keep = np.array([not np.allclose(jac[i], eye[i], rtol=0.0, atol=1e-10) for i in range(jac.shape[0])])
     lam = np.linalg.eigvals(jac[np.ix_(keep, keep)])
-    k = int(np.argmax(np.abs(lam)))
-    dt = controller.dt_s
-    dominant = complex(np.log(complex(lam[k])) / dt)
     # the blocks: plant p = (x, rotor, servos) with input u; controller c with input x
     nx, nr, ns, _nc = tm.sizes
     npl = nx + nr + ns
@@ -239,36 +293,43 @@ def linearize_loop(
     bc, ac = jc[N_PITCH:, :nx][kc], jc[N_PITCH:, nx:][np.ix_(kc, kc)]
     cp = np.zeros((nx, npl))
     cp[:, :nx] = np.eye(nx)
-    # the controller as a system from measured x to pitches u, the plant from u to x
-    ctl = _ss(ac, bc, cc, dc, dt)
-    pl = _ss(ap, bp, cp, np.zeros((nx, N_PITCH)), dt)
-    stable = bool(np.max(np.abs(lam)) < 1.0)
-    points = []
-    loop_in = -(ctl * pl)  # broken at the plant's input: u -> x -> u, negative feedback convention
-    loop_out = -(pl * ctl)  # broken at the measurements: x -> u -> x
-    for i, nm in enumerate(PITCH_NAMES):
-        points.append(_disk(f"input {nm}", _loop_at_a_time(loop_in, i), stable))
-    for j, nm in enumerate(STATE_NAMES):
-        points.append(_disk(f"state {nm}", _loop_at_a_time(loop_out, j), stable))
-    multi = _multiloop_disk("input all four", loop_in, stable)
+    dt = controller.dt_s
+    return LoopBlocks(Discrete(ac, bc, cc, dc, dt), Discrete(ap, bp, cp, np.zeros((nx, N_PITCH)), dt), lam)
+
+
+def linearize_loop(
+    controller: KernelController[Any], model: PlantModel, design: Airframe, servos: Servos,
+    servos_name: str = "",
+) -> LoopLinearization:  # fmt: skip
+    """The closed loop of ``controller`` on ``model`` at hover, with ``servos`` (delay and lag)."""
+    blocks = loop_blocks(controller, model, design, servos)
+    lam = blocks.eigenvalues
+    k = int(np.argmax(np.abs(lam)))
+    dominant = complex(np.log(complex(lam[k])) / controller.dt_s)
+    if not blocks.stable:  # a disk margin presumes a stable loop: none at all
+        groups = (("input", PITCH_NAMES), ("state", STATE_NAMES))
+        zero = tuple(BreakPoint(f"{kind} {nm}", 0.0, 0.0, 0.0) for kind, names in groups for nm in names)
+        multi = BreakPoint("input all four", 0.0, 0.0, 0.0)
+    else:
+        loop_in, loop_out = blocks.loops()
+        zero = tuple(balanced_disk(f"input {nm}", loop_at_a_time(loop_in, i))
+                     for i, nm in enumerate(PITCH_NAMES))  # fmt: skip
+        zero += tuple(balanced_disk(f"state {nm}", loop_at_a_time(loop_out, j))
+                      for j, nm in enumerate(STATE_NAMES))  # fmt: skip
+        multi = _multiloop_disk("input all four", loop_in)
     return LoopLinearization(model.kind, controller.kind, servos_name, lam, float(np.max(np.abs(lam))),
-                             dominant, tuple(points), multi)  # fmt: skip
+                             dominant, zero, multi)  # fmt: skip
 
 
-def _multiloop_disk(name: str, loop: ct.StateSpace, stable: bool) -> BreakPoint:
+def _multiloop_disk(name: str, loop: FloatArray) -> BreakPoint:
     """All channels perturbed at once by one full complex block (no slycot: the unstructured
     bound of the balanced disk margin, ``1 / max_w sigma_max((I - L)(I + L)^-1 / 2)``, a
     conservative one next to the diagonal structure's mu)."""
-    if not stable:
-        return BreakPoint(name, 0.0, 0.0, 0.0)
-    resp = loop.frequency_response(OMEGA_RAD_S)
-    fr = np.asarray(resp.complex)  # (n, n, w)
-    n = fr.shape[0]
-    worst = 0.0
-    for k in range(fr.shape[2]):
-        lk = fr[:, :, k]
-        s0 = 0.5 * (np.eye(n) - lk) @ np.linalg.inv(np.eye(n) + lk)
-        worst = max(worst, float(np.linalg.norm(s0, 2)))
+    n = loop.shape[-1]
+    eye = np.eye(n)
+    t = (0, 2, 1)  # X (I + L) = I - L, solved transposed
+    s0 = 0.5 * np.linalg.solve((eye + loop).transpose(t), (eye - loop).transpose(t)).transpose(t)
+    worst = float(np.max(np.linalg.norm(s0, 2, axis=(1, 2))))
     return _from_alpha(name, 1.0 / worst)
 
 
@@ -280,17 +341,6 @@ def _from_alpha(name: str, alpha: float) -> BreakPoint:
                       float(math.degrees(2.0 * math.atan(alpha / 2))))  # fmt: skip
 
 
-def _loop_at_a_time(loop: ct.StateSpace, i: int) -> ct.StateSpace:
-    """Channel ``i`` of a square loop opened, every other closed: the SISO loop ``w -> y_i``
-    with ``u = w e_i - (y with its i-th entry zeroed)`` (negative feedback everywhere)."""
-    n = loop.ninputs
-    others = np.eye(n)
-    others[i, i] = 0.0
-    # u = e_i w - others @ y ; y = L u  =>  the closure of L with feedback `others`
-    closed = ct.feedback(loop, ct.ss([], [], [], others, loop.dt), sign=-1)
-    return closed[i, i]
-
-
 def servo_model(name: str) -> tuple[str, Servos]:
     """A world preset's servos (``ideal``: none)."""
     if name == "ideal":
@@ -298,4 +348,5 @@ def servo_model(name: str) -> tuple[str, Servos]:
     return name, World.load(name).servos
 
 
-__all__ = ["BreakPoint", "LoopLinearization", "TickMap", "linearize_loop", "servo_model"]
+__all__ = ["BreakPoint", "Discrete", "LoopBlocks", "LoopLinearization", "TickMap", "balanced_disk",
+           "linearize_loop", "loop_at_a_time", "loop_blocks", "servo_model"]  # fmt: skip

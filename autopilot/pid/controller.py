@@ -135,11 +135,15 @@ def pid_kernel(
         s[:] = 0.0
         s[P_PSI_C] = math.atan2(vr[1], vr[0]) if math.hypot(vr[0], vr[1]) > k.yaw_hold_speed_m_s else gam[2]
 
-    # --- position P -> velocity set point (trajectory velocity as feed-forward)
-    vsp = vr + k.kp_pos * (ref[REF_POS : REF_POS + 3] - pos)
-    sp = math.sqrt(vsp[0] ** 2 + vsp[1] ** 2 + vsp[2] ** 2)
-    if sp > k.max_speed:
-        vsp *= k.max_speed / sp
+    # --- position P -> velocity set point (trajectory velocity as feed-forward); the
+    # correction's horizontal speed limited, the trajectory's own speed not: the TLC's
+    # limit (TLC_MAX_SPEED), so that both contenders fly under the same command limits
+    fb = k.kp_pos * (ref[REF_POS : REF_POS + 3] - pos)
+    h = math.hypot(fb[0], fb[1])
+    if h > k.max_speed:
+        fb[0] *= k.max_speed / h
+        fb[1] *= k.max_speed / h
+    vsp = vr + fb
     # --- velocity PI (earth) -> acceleration set point (trajectory acceleration as feed-forward)
     rt = rot_body_to_earth(gam[0], gam[1], gam[2])
     ve = vsp - rt @ vel
