@@ -192,7 +192,8 @@ def _margins(args: argparse.Namespace) -> int:
 def _compare(args: argparse.Namespace) -> int:
     from heli_sitl.compare import command_line, run_compare
 
-    run_compare(args.file, Path(args.out), Path(args.work), samples=args.samples, workers=args.workers,
+    run_compare(args.file, Path(args.out), Path(args.work), samples=args.samples, seeds=args.seeds,
+                workers=args.workers,
                 quiet=args.quiet, command=command_line())  # fmt: skip
     return 0
 
@@ -459,12 +460,14 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--quiet", action="store_true")
     t.set_defaults(func=_tune)
 
-    k = sub.add_parser("compare", help="the controllers side by side: nominal, worlds, campaigns; report")
+    k = sub.add_parser("compare", help="the controllers side by side: trajectories, worlds, campaigns, paired; report")
     k.add_argument("file", nargs="?", default="compare.toml",
                    help="comparison TOML (default: configs/compare.toml)")
     k.add_argument("--out", required=True, help="report, figures and numbers (e.g. docs/comparison)")
     k.add_argument("--work", default="out/compare", help="the campaigns' Parquet rows (a re-run resumes)")
     k.add_argument("--samples", type=arg.count, default=None, help="Monte Carlo campaigns: flights each")
+    k.add_argument("--seeds", type=arg.count, default=None,
+                   help="paired Monte Carlo sets: flights each (default: the file's seeds)")
     k.add_argument("--workers", type=arg.count, default=None, help="embedded cluster size (default: cores)")
     k.add_argument("--quiet", action="store_true")
     k.set_defaults(func=_compare)

@@ -1,17 +1,24 @@
-"""``heli-sitl compare``: the controllers side by side on the same flights.
+"""``heli-sitl compare``: the controllers side by side on the same flights, with intervals.
 
 A comparison file (``configs/compare.toml``) names the contenders (a controller, its gains,
-the TLC's feed-forward) and what they all fly:
+the TLC's feed-forward), the plants, and what they all fly on each plant:
 
-* **nominal**: the paper scenario in the ideal world, one flight each;
-* **worlds**: the same scenario in each world preset (air, servos, model mismatch, sensors
-  through the estimator), one flight each with the same world seed;
-* **campaigns**: the shipped campaigns (robustness Monte Carlo, the servo margins grid, the
-  region of attraction), each flown by every contender with the same samples and seeds,
-  on one Dask cluster; their Parquet rows stay in ``--work`` (a re-run resumes them).
+* **trajectories**: each scenario (the paper's and the held-out ones) once in its calm world
+  (deterministic: one flight says it), then ``seeds`` times in its Monte Carlo world;
+* **worlds**: the paper scenario in each world preset, ``seeds`` times where the world has a
+  seeded part (turbulence, sensors), once where it has none;
+* **campaigns**: the shipped campaigns, each flown by every contender with the same samples
+  and seeds, on one Dask cluster; their Parquet rows stay in ``--work`` (a re-run resumes).
+
+Every Monte Carlo set is paired: each contender flies the same seeds (the same samples), so
+each one is tested against the ``reference`` contender per flight: the bootstrap 95 % interval
+of the median difference and the Wilcoxon signed-rank test (:mod:`heli_sitl.stats`); the
+medians and 95th percentiles carry their bootstrap intervals, the loss rates their exact ones.
+Every contender flies under the same command limits (``max_speed_m_s``: the horizontal speed
+of the position loop's correction). The metrics of a flight: :mod:`heli_sitl.scorecard`.
 
 Written to ``--out``: ``report.md`` (every table, and the command that made it),
-``comparison.json`` (the same numbers) and the overlay figures.
+``comparison.json`` (the same numbers) and the figures.
 """
 
 from __future__ import annotations
@@ -38,30 +45,23 @@ from autopilot.pid.gains import PidGains
 from autopilot.scenario import Scenario
 from heli_common.config import CONFIG_DIR, ConfigError, read_toml, resolve
 from heli_common.plant_model import PlantModel
-from heli_common.state import PSI
 from heli_common.world import World
 from heli_sitl.campaign import engine
-from heli_sitl.campaign.flight import flight_seed, metrics
+from heli_sitl.campaign.flight import flight_seed
 from heli_sitl.campaign.run import run_campaign
 from heli_sitl.campaign.settings import canonical
-from heli_sitl.campaign.spec import CampaignSpec, load_campaign
+from heli_sitl.campaign.spec import CampaignSpec, Vary, load_campaign
 from heli_sitl.closed_loop import SimOptions, simulate
+from heli_sitl.scorecard import LABELS, FlightScore, score
+from heli_sitl.stats import Interval, Paired, loss_rate, paired, percentile_ci
 
-TOP_KEYS = ("name", "scenario", "plant", "worlds", "campaigns", "contender")
+TOP_KEYS = ("name", "plants", "plant", "reference", "seeds", "max_speed_m_s", "trajectory", "worlds",
+            "campaigns", "contender")  # fmt: skip
 CONTENDER_KEYS = ("label", "controller", "gains", "pid_gains", "feedforward")
-FLIGHT_METRICS = (
-    "rms_0_m",
-    "rms_10_m",
-    "rms_45_m",
-    "max_err_10_m",
-    "pitch_travel_rad",
-    "max_servo_rate_rad_s",
-    "saturated_ticks",
-    "max_tilt_rad",
-    "converged",
-    "diverged",
-)
+TRAJECTORY_KEYS = ("name", "world", "mc_world")
 COLORS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple")
+#: the metrics the paired tables test, each against the reference contender
+PAIRED_METRICS = ("steady_rms_m", "transient_peak_m", "pitch_rate_rms_rad_s")
 
 
 @dataclass(frozen=True)
@@ -78,78 +78,132 @@ class Contender:
 
 
 @dataclass(frozen=True)
+class TrajectorySet:
+    """A scenario flown once in ``world`` ("": calm) and ``seeds`` times in ``mc_world``."""
+
+    name: str
+    world: str = ""
+    mc_world: str = ""
+
+
+@dataclass(frozen=True)
 class CompareSpec:
     name: str
     contenders: tuple[Contender, ...]
-    scenario: str = "paper"
+    plants: tuple[str, ...] = ("paper",)
+    reference: str = ""  # the label every contender is tested against ("": the first)
+    seeds: int = 20  # Monte Carlo flights per set
+    max_speed_m_s: float = 0.0  # every contender's correction speed limit (0: each its own)
+    trajectories: tuple[TrajectorySet, ...] = (TrajectorySet("paper"),)
     worlds: tuple[str, ...] = ()
     campaigns: tuple[str, ...] = ()
     source: str = ""
-    plant: str = "paper"  # every flight's plant: paper, gavrilets or a plant file
+
+    @property
+    def reference_label(self) -> str:
+        return self.reference or self.contenders[0].label
+
+
+def _names(src: str, t: dict[str, Any], k: str) -> tuple[str, ...]:
+    v = t.get(k, [])
+    if not isinstance(v, list) or not all(isinstance(x, str) for x in v):
+        raise ConfigError(f"{src}: {k}: expected an array of names")
+    return tuple(v)
+
+
+def _tables(src: str, t: dict[str, Any], k: str, keys: tuple[str, ...]) -> list[dict[str, str]]:
+    raw = t.get(k, [])
+    if not isinstance(raw, list):
+        raise ConfigError(f"{src}: {k}: expected an array of tables [[{k}]]")
+    for i, c in enumerate(raw):
+        where = f"{src}: {k}[{i}]"
+        if not isinstance(c, dict):
+            raise ConfigError(f"{where}: expected a table")
+        for key, v in c.items():
+            if key not in keys:
+                raise ConfigError(f"{where}: unknown key {key!r}; expected one of {', '.join(keys)}")
+            if not isinstance(v, str):
+                raise ConfigError(f"{where}.{key}: expected a string, got {v!r}")
+    return raw
 
 
 def load_compare(path: str | Path = "compare.toml") -> CompareSpec:
     """A comparison file (as given, or in configs/), checked: unknown keys, a controller
-    that is not tlc or pid, a gains file, world or campaign that does not load."""
+    that is not tlc or pid, a gains file, world, scenario or campaign that does not load."""
     p, t = read_toml(path)
     src = str(p)
     for k in t:
         if k not in TOP_KEYS:
             raise ConfigError(f"{src}: unknown key {k!r}; expected one of {', '.join(TOP_KEYS)}")
-    raw = t.get("contender", [])
-    if not isinstance(raw, list) or not raw:
+    raw = _tables(src, t, "contender", CONTENDER_KEYS)
+    if not raw:
         raise ConfigError(f"{src}: expected at least one [[contender]]")
     contenders = []
     for i, c in enumerate(raw):
-        where = f"{src}: contender[{i}]"
-        if not isinstance(c, dict) or not isinstance(c.get("label"), str) or not c["label"]:
-            raise ConfigError(f"{where}: a table with a label")
-        for k, v in c.items():
-            if k not in CONTENDER_KEYS:
-                raise ConfigError(f"{where}: unknown key {k!r}; expected one of {', '.join(CONTENDER_KEYS)}")
-            if not isinstance(v, str):
-                raise ConfigError(f"{where}.{k}: expected a string, got {v!r}")
+        if not c.get("label"):
+            raise ConfigError(f"{src}: contender[{i}]: a table with a label")
         con = Contender(**c)
         if con.controller not in ("tlc", "pid"):
-            raise ConfigError(f'{where}.controller: expected "tlc" or "pid", got {con.controller!r}')
+            raise ConfigError(
+                f'{src}: contender[{i}].controller: expected "tlc" or "pid", got {con.controller!r}'
+            )
         if con.feedforward not in ("", "pseudo", "exact"):
-            raise ConfigError(f'{where}.feedforward: expected "pseudo" or "exact", got {con.feedforward!r}')
+            raise ConfigError(
+                f'{src}: contender[{i}].feedforward: expected "pseudo" or "exact", got {con.feedforward!r}'
+            )
         contenders.append(con)
     labels = [c.label for c in contenders]
     if len({c.slug for c in contenders}) != len(contenders):
         raise ConfigError(f"{src}: contender labels must differ ({', '.join(labels)})")
-    lists = {}
-    for k in ("worlds", "campaigns"):
-        v = t.get(k, [])
-        if not isinstance(v, list) or not all(isinstance(x, str) for x in v):
-            raise ConfigError(f"{src}: {k}: expected an array of names")
-        lists[k] = tuple(v)
+    reference = str(t.get("reference", ""))
+    if reference and reference not in labels:
+        raise ConfigError(f"{src}: reference {reference!r} is not a contender's label ({', '.join(labels)})")
+    plants = _names(src, t, "plants") if "plants" in t else (str(t.get("plant", "paper")),)
+    seeds, speed = t.get("seeds", 20), t.get("max_speed_m_s", 0.0)
+    if not isinstance(seeds, int) or isinstance(seeds, bool) or not 2 <= seeds <= 10_000:
+        raise ConfigError(f"{src}: seeds: expected an integer in [2, 10000], got {seeds!r}")
+    if not isinstance(speed, (int, float)) or isinstance(speed, bool) or not 0.0 <= speed <= 50.0:
+        raise ConfigError(f"{src}: max_speed_m_s: expected a number in [0, 50] m/s, got {speed!r}")
+    trajs = tuple(TrajectorySet(**c) for c in _tables(src, t, "trajectory", TRAJECTORY_KEYS))
+    for i, tr in enumerate(trajs):
+        if not tr.name:
+            raise ConfigError(f"{src}: trajectory[{i}]: a table with a name")
     spec = CompareSpec(
-        str(t.get("name", p.stem)),
-        tuple(contenders),
-        str(t.get("scenario", "paper")),
-        lists["worlds"],
-        lists["campaigns"],
-        src,
-        str(t.get("plant", "paper")),
-    )
-    PlantModel.load(spec.plant)
-    for c in spec.contenders:  # every file loads before anything flies
-        scenario_for(spec.scenario, c)
-        if c.pid_gains:
-            PidGains.load(c.pid_gains)
-    for w in spec.worlds:
+        str(t.get("name", p.stem)), tuple(contenders), plants, reference, seeds, float(speed),
+        trajs or (TrajectorySet("paper"),), _names(src, t, "worlds"), _names(src, t, "campaigns"), src,
+    )  # fmt: skip
+    for plant in spec.plants:
+        PlantModel.load(plant)
+    for con in spec.contenders:  # every file loads before anything flies
+        for tr in spec.trajectories:
+            scenario_for(tr.name, con)
+        if con.pid_gains:
+            PidGains.load(con.pid_gains)
+    for w in (*spec.worlds, *(x for tr in spec.trajectories for x in (tr.world, tr.mc_world) if x)):
         World.load(w)
     for name in spec.campaigns:
         load_campaign(name)
     return spec
 
 
-def scenario_for(name: str, c: Contender) -> Scenario:
+def scenario_for(name: str, c: Contender, max_speed_m_s: float = 0.0) -> Scenario:
     sc = Scenario.load(name, gains=c.gains or None)
     if c.feedforward:
         sc = dataclasses.replace(sc, run=dataclasses.replace(sc.run, feedforward=c.feedforward))
+    if max_speed_m_s > 0.0:
+        g = sc.gains
+        sc = dataclasses.replace(sc, gains=dataclasses.replace(
+            g, limits=dataclasses.replace(g.limits, max_speed_m_s=max_speed_m_s)))  # fmt: skip
     return sc
+
+
+def pid_gains_for(c: Contender, max_speed_m_s: float = 0.0) -> PidGains | None:
+    if c.controller != "pid":
+        return None
+    g = PidGains.load(c.pid_gains or "gains_pid.toml")
+    if max_speed_m_s > 0.0:
+        g = dataclasses.replace(g, position=dataclasses.replace(g.position, max_speed_m_s=max_speed_m_s))
+    return g
 
 
 def estimator_for(world: str) -> EstimatorConfig:
@@ -161,31 +215,51 @@ def estimator_for(world: str) -> EstimatorConfig:
 # ----------------------------------------------------------------------------- flights
 
 
-def fly(
-    spec: CompareSpec, c: Contender, world: str = "", seed: int = 1
-) -> tuple[dict[str, Any], FlightRecord]:
-    """One flight of ``c`` in ``world`` ("" the ideal one), with the campaigns' metrics."""
-    sc = scenario_for(spec.scenario, c)
-    w = dataclasses.replace(World.load(world), seed=seed) if world else None
+@dataclass(frozen=True)
+class Flight:
+    """One flight of the comparison: who, on which plant, what, in which world, which seed."""
+
+    contender: Contender
+    plant: str
+    scenario: str
+    world: str = ""  # "": calm
+    seed: int = 1
+    max_speed_m_s: float = 0.0
+
+
+def fly_record(f: Flight) -> tuple[Scenario, FlightRecord]:
+    sc = scenario_for(f.scenario, f.contender, f.max_speed_m_s)
+    w = dataclasses.replace(World.load(f.world), seed=f.seed) if f.world else None
     if w is not None:
-        w = dataclasses.replace(w, sensors=dataclasses.replace(w.sensors, seed=seed))
+        w = dataclasses.replace(w, sensors=dataclasses.replace(w.sensors, seed=f.seed))
     opts = SimOptions(
         world=w,
-        estimator=estimator_for(world),
-        controller=c.controller,
-        pid_gains=PidGains.load(c.pid_gains) if c.pid_gains else None,
-        plant=PlantModel.load(spec.plant),
+        estimator=estimator_for(f.world),
+        controller=f.contender.controller,
+        pid_gains=pid_gains_for(f.contender, f.max_speed_m_s),
+        plant=PlantModel.load(f.plant),
     )
-    rec = simulate(sc, opts)
-    m = metrics(rec, CampaignSpec(name="compare", metrics=FLIGHT_METRICS))
-    m["saturated_pct"] = 100.0 * m.pop("saturated_ticks") / max(1, rec.t_s.size)
-    # the tuning cost knows only the position: the heading is reported beside it
-    yaw_err = np.angle(np.exp(1j * (rec.psi_cmd - rec.x[:, PSI])))[rec.window(10.0, float(rec.t_s[-1]))]
-    m["rms_yaw_10_deg"] = float(np.degrees(np.sqrt(np.mean(yaw_err**2)))) if yaw_err.size else math.nan
-    return m, rec
+    return sc, simulate(sc, opts)
 
 
-def campaign_spec(name: str, c: Contender, samples: int | None, plant: str = "paper") -> CampaignSpec:
+def fly(f: Flight) -> FlightScore:
+    """One flight's score; a flight that raises is lost (its error kept out of the numbers)."""
+    try:
+        sc, rec = fly_record(f)
+    except (ValueError, FloatingPointError, np.linalg.LinAlgError):
+        nan = math.nan
+        return FlightScore(nan, nan, nan, nan, nan, nan, nan, nan, 1.0)
+    return score(rec, sc)
+
+
+def mc_seeds(n: int) -> tuple[int, ...]:
+    """The Monte Carlo sets' world seeds: the campaigns' flight seeds of samples 0..n-1."""
+    return tuple(flight_seed(CampaignSpec(name="compare", seed=1), i) for i in range(n))
+
+
+def campaign_spec(
+    name: str, c: Contender, samples: int | None, plant: str = "paper", max_speed_m_s: float = 0.0
+) -> CampaignSpec:
     spec = load_campaign(name)
     spec = dataclasses.replace(
         spec,
@@ -197,6 +271,10 @@ def campaign_spec(name: str, c: Contender, samples: int | None, plant: str = "pa
     )
     if samples is not None and spec.sampler != "grid":
         spec = dataclasses.replace(spec, samples=samples)
+    if max_speed_m_s > 0.0:  # the same command limit for every contender: one fixed setting
+        key = "pid.position.max_speed_m_s" if c.controller == "pid" else "gains.limits.max_speed_m_s"
+        fixed = Vary(key, "grid" if spec.sampler == "grid" else "choice", values=(max_speed_m_s,))
+        spec = dataclasses.replace(spec, vary=(*spec.vary, fixed))
     # the settings by their full names, as the rows' columns carry them
     return dataclasses.replace(
         spec, vary=tuple(dataclasses.replace(v, key=canonical(v.key)) for v in spec.vary)
@@ -243,6 +321,12 @@ def campaign_summary(t: pa.Table, spec: CampaignSpec) -> dict[str, Any]:
             if (v.size)
             else {"p50": math.nan, "p95": math.nan, "max": math.nan}
         )
+    ok = ~failed
+    out["loss_rate"] = loss_rate(out["diverged"] + out["failed"], max(1, out["flights"]))
+    out["rms_10_ci"] = {
+        "p50": percentile_ci(_col(t, "rms_10_m")[ok], 50),
+        "p95": percentile_ci(_col(t, "rms_10_m")[ok], 95),
+    }
     keys = spec.keys
     if spec.sampler == "grid" and keys:
         low = {k: float(np.nanmin(_col(t, k))) for k in keys}
@@ -262,54 +346,128 @@ def _f(v: Any, fmt: str = ".3f") -> str:
     return format(v, fmt)
 
 
+def _ci(iv: Interval, fmt: str = ".3f") -> str:
+    return f"{_f(iv.estimate, fmt)} [{_f(iv.lo, fmt)}, {_f(iv.hi, fmt)}]"
+
+
+def _p(p: float) -> str:
+    return "-" if not math.isfinite(p) else ("<1e-4" if p < 1e-4 else f"{p:.2g}")
+
+
+def trajectory_table(res: dict[str, dict[str, FlightScore]]) -> str:
+    """One flight each (deterministic): every score field per trajectory and contender."""
+    names = FlightScore.names()
+    header = ["trajectory", "controller"] + [f"{LABELS[n][0]} {LABELS[n][1]}".strip() for n in names]
+    rows = []
+    for traj, by in res.items():
+        for lab, sc in by.items():
+            d = sc.as_dict()
+            rows.append([traj, lab] + [_f(d[n], LABELS[n][2]) for n in names])
+    return md_table(header, rows)
+
+
+@dataclass(frozen=True)
+class MonteCarloSet:
+    """``seeds`` flights of every contender in one world (the same seeds): the scores, and
+    each contender against the reference on every paired metric."""
+
+    title: str
+    seeds: int
+    scores: dict[str, tuple[FlightScore, ...]]  # by contender label
+    reference: str
+
+    def values(self, label: str, metric: str) -> np.ndarray:
+        return np.array([getattr(s, metric) for s in self.scores[label]], dtype=float)
+
+    @property
+    def deterministic(self) -> bool:
+        """Every seed flew the same flight (the world has no seeded part)."""
+        return all(len({round(s.steady_rms_m, 12) for s in v}) == 1 for v in self.scores.values())
+
+    def against_reference(self, label: str, metric: str) -> Paired:
+        return paired(self.values(label, metric), self.values(self.reference, metric))
+
+    def as_dict(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"title": self.title, "seeds": self.seeds, "reference": self.reference,
+                               "deterministic": self.deterministic, "by": {}}  # fmt: skip
+        for lab in self.scores:
+            m: dict[str, Any] = {"lost": int(self.values(lab, "lost").sum())}
+            for metric in PAIRED_METRICS:
+                v = self.values(lab, metric)
+                m[metric] = {"p50": dataclasses.asdict(percentile_ci(v, 50)),
+                             "p95": dataclasses.asdict(percentile_ci(v, 95))}  # fmt: skip
+                if lab != self.reference:
+                    m[metric]["vs_reference"] = dataclasses.asdict(self.against_reference(lab, metric))
+            out["by"][lab] = m
+        return out
+
+
+def monte_carlo_table(sets: list[MonteCarloSet]) -> str:
+    """Per set and contender: median and 95th percentile [95 % CI] of the steady RMS, the
+    median transient peak and cyclic rate, losses; against the reference: the median
+    difference [95 % CI] and the Wilcoxon p of the steady RMS and the transient peak."""
+    header = [
+        "set",
+        "controller",
+        "lost",
+        "steady RMS p50 [CI] m",
+        "steady RMS p95 [CI] m",
+        "transient peak p50 [CI] m",
+        "cyclic rate RMS p50 [CI] rad/s",
+        "steady RMS minus reference: p50 [CI] m (Wilcoxon p)",
+        "transient peak minus reference: p50 [CI] m (Wilcoxon p)",
+    ]
+    rows = []
+    for ms in sets:
+        for lab in ms.scores:
+            lost = int(ms.values(lab, "lost").sum())
+            cells = [ms.title, lab, f"{lost}/{ms.seeds}"]
+            steady = ms.values(lab, "steady_rms_m")
+            if ms.deterministic:
+                cells += [f"{_f(steady[0], '.4f')} (deterministic)", "-",
+                          _f(ms.values(lab, "transient_peak_m")[0]),
+                          _f(ms.values(lab, "pitch_rate_rms_rad_s")[0])]  # fmt: skip
+            else:
+                cells += [_ci(percentile_ci(steady, 50), ".4f"), _ci(percentile_ci(steady, 95), ".4f"),
+                          _ci(percentile_ci(ms.values(lab, "transient_peak_m"), 50)),
+                          _ci(percentile_ci(ms.values(lab, "pitch_rate_rms_rad_s"), 50))]  # fmt: skip
+            for metric in ("steady_rms_m", "transient_peak_m"):
+                if lab == ms.reference:
+                    cells.append("(reference)")
+                    continue
+                pr = ms.against_reference(lab, metric)
+                if ms.deterministic:
+                    cells.append(_f(pr.median_diff.estimate, "+.4f"))
+                else:
+                    cells.append(f"{_ci(pr.median_diff, '+.4f')} ({_p(pr.wilcoxon_p)})")
+            rows.append(cells)
+    return md_table(header, rows)
+
+
+def campaign_paired_table(tables: dict[str, pa.Table], reference: str) -> str:
+    """Each contender against the reference on the campaign's own samples (rows by sample
+    id), the RMS from 10 s: the median difference [95 % CI], the Wilcoxon p and how often it
+    is the better of the two."""
+    ref = tables[reference]
+    ids = _col(ref, "sample_id")
+    header = ["controller", "flights paired", "RMS [10,end] minus reference: p50 [CI] m", "Wilcoxon p",
+              "better than the reference in"]  # fmt: skip
+    rows = []
+    for lab, t in tables.items():
+        if lab == reference:
+            continue
+        other = dict(zip(_col(t, "sample_id"), _col(t, "rms_10_m"), strict=True))
+        a = np.array([other.get(i, math.nan) for i in ids])
+        pr = paired(a, _col(ref, "rms_10_m"))
+        rows.append([lab, str(pr.n), _ci(pr.median_diff, "+.4f"), _p(pr.wilcoxon_p),
+                     f"{100 * pr.a_better_fraction:.0f} %"])  # fmt: skip
+    return md_table(header, rows)
+
+
 def md_table(header: list[str], rows: list[list[str]]) -> str:
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     lines += ["| " + " | ".join(r) + " |" for r in rows]
     return "\n".join(lines)
-
-
-def nominal_table(res: dict[str, Any]) -> str:
-    header = [
-        "controller",
-        "RMS [0,end] m",
-        "RMS [10,end] m",
-        "RMS [45,end] m",
-        "max from 10 s m",
-        "pitch travel rad",
-        "max pitch rate rad/s",
-        "saturated %",
-        "max tilt deg",
-        "RMS yaw error [10,end] deg",
-    ]
-    rows = [
-        [
-            lab,
-            _f(m["rms_0_m"]),
-            _f(m["rms_10_m"]),
-            _f(m["rms_45_m"], ".4f"),
-            _f(m["max_err_10_m"]),
-            _f(m["pitch_travel_rad"], ".2f"),
-            _f(m["max_servo_rate_rad_s"], ".2f"),
-            _f(m["saturated_pct"], ".2f"),
-            _f(math.degrees(m["max_tilt_rad"]), ".1f"),
-            _f(m["rms_yaw_10_deg"], ".2f"),
-        ]
-        for lab, m in res.items()
-    ]
-    return md_table(header, rows)
-
-
-def worlds_table(res: dict[str, dict[str, Any]], labels: list[str]) -> str:
-    header = ["world"] + [f"{lab}: RMS [10,end] / max from 10 s m" for lab in labels]
-    rows = []
-    for world, by in res.items():
-        cells = [world]
-        for lab in labels:
-            m = by[lab]
-            tag = " (lost)" if m["diverged"] else ""
-            cells.append(f"{_f(m['rms_10_m'])} / {_f(m['max_err_10_m'], '.2f')}{tag}")
-        rows.append(cells)
-    return md_table(header, rows)
 
 
 def campaign_table(res: dict[str, dict[str, Any]]) -> str:
@@ -319,7 +477,9 @@ def campaign_table(res: dict[str, dict[str, Any]]) -> str:
         "flights",
         "converged",
         "lost",
-        "RMS [10,end] p50 / p95 m",
+        "lost: rate [95 % interval]",
+        "RMS [10,end] p50 [95 % CI] m",
+        "RMS [10,end] p95 [95 % CI] m",
         "RMS [45,end] p50 / p95 m",
         "max from 10 s p95 m",
         "pitch travel p50 rad",
@@ -342,7 +502,9 @@ def campaign_table(res: dict[str, dict[str, Any]]) -> str:
             str(s["flights"]),
             str(s["converged"]),
             str(s["diverged"]),
-            f"{_f(s['rms_10_m']['p50'])} / {_f(s['rms_10_m']['p95'])}",
+            s["loss_rate"].pct(),
+            _ci(s["rms_10_ci"]["p50"]),
+            _ci(s["rms_10_ci"]["p95"]),
             f"{_f(s['rms_45_m']['p50'], '.4f')} / {_f(s['rms_45_m']['p95'], '.4f')}",
             _f(s["max_err_10_m"]["p95"]),
             _f(s["pitch_travel_rad"]["p50"], ".2f"),
@@ -353,85 +515,8 @@ def campaign_table(res: dict[str, dict[str, Any]]) -> str:
     return md_table(header, rows)
 
 
-def plot_nominal(recs: dict[str, FlightRecord], out: Path) -> list[Path]:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axs = plt.subplots(2, 1, figsize=(8, 6.5), sharex=True)
-    for (lab, rec), col in zip(recs.items(), COLORS, strict=False):
-        axs[0].semilogy(rec.t_s, np.maximum(rec.pos_err_m, 1e-5), color=col, lw=1, label=lab)
-        axs[1].plot(
-            rec.t_s,
-            np.sum(np.abs(np.diff(rec.pitches, axis=0, prepend=rec.pitches[:1])), axis=1)
-            / np.gradient(rec.t_s),
-            color=col,
-            lw=0.6,
-            label=lab,
-        )
-    axs[0].set_ylabel("3-D position error [m]")
-    axs[0].legend(fontsize=8)
-    axs[0].grid(True, which="both", alpha=0.3)
-    axs[1].set_ylabel("sum of |pitch rate| [rad/s]")
-    axs[1].set_xlabel("t [s]")
-    axs[1].grid(True, alpha=0.3)
-    fig.suptitle("paper scenario, ideal world: tracking error and control activity", fontsize=10)
-    fig.tight_layout()
-    files = [out / "nominal_error.png"]
-    fig.savefig(files[0], dpi=110)
-    plt.close(fig)
-
-    fig, axs = plt.subplots(1, 2, figsize=(10, 4.5))
-    first = next(iter(recs.values()))
-    axs[0].plot(first.ref[:, 1], first.ref[:, 0], "k--", lw=1, label="reference")
-    axs[1].plot(first.t_s, first.ref[:, 2], "k--", lw=1, label="reference")
-    for (lab, rec), col in zip(recs.items(), COLORS, strict=False):
-        axs[0].plot(rec.x[:, 1], rec.x[:, 0], color=col, lw=1, label=lab)
-        axs[1].plot(rec.t_s, rec.x[:, 2], color=col, lw=1, label=lab)
-    axs[0].set_xlabel("y west [m]")
-    axs[0].set_ylabel("x north [m]")
-    axs[0].invert_xaxis()  # west to the left, as on a map
-    axs[0].set_aspect("equal", adjustable="datalim")
-    axs[0].set_title("top view", fontsize=9)
-    axs[1].set_xlabel("t [s]")
-    axs[1].set_ylabel("z up [m]")
-    axs[1].set_title("height", fontsize=9)
-    axs[0].legend(fontsize=7)
-    fig.tight_layout()
-    files.append(out / "nominal_path.png")
-    fig.savefig(files[-1], dpi=110)
-    plt.close(fig)
-    return files
-
-
-def plot_worlds(res: dict[str, dict[str, Any]], labels: list[str], out: Path) -> Path:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    worlds = list(res)
-    fig, ax = plt.subplots(figsize=(max(7.0, 0.8 * len(worlds) * len(labels) / 2), 4.2))
-    width = 0.8 / len(labels)
-    for j, (lab, col) in enumerate(zip(labels, COLORS, strict=False)):
-        v = [res[w][lab]["rms_10_m"] for w in worlds]
-        ax.bar(np.arange(len(worlds)) + (j - (len(labels) - 1) / 2) * width, v, width, color=col, label=lab)
-    ax.set_yscale("log")
-    ax.set_xticks(np.arange(len(worlds)), worlds, rotation=30, ha="right", fontsize=8)
-    ax.set_ylabel("RMS error [10, end] [m]")
-    ax.grid(True, axis="y", which="both", alpha=0.3)
-    ax.legend(fontsize=8)
-    ax.set_title("paper scenario in each world preset", fontsize=10)
-    fig.tight_layout()
-    f = out / "worlds.png"
-    fig.savefig(f, dpi=110)
-    plt.close(fig)
-    return f
-
-
 def plot_campaigns(
-    tables: dict[str, dict[str, pa.Table]], specs: dict[str, CampaignSpec], out: Path
+    tables: dict[str, dict[str, pa.Table]], specs: dict[str, CampaignSpec], out: Path, prefix: str = ""
 ) -> list[Path]:
     import matplotlib
 
@@ -487,7 +572,7 @@ def plot_campaigns(
             ax.legend(fontsize=8)
             ax.set_title(name, fontsize=10)
         fig.tight_layout()
-        files.append(out / f"campaign_{name}.png")
+        files.append(out / f"{prefix}campaign_{name}.png")
         fig.savefig(files[-1], dpi=110)
         plt.close(fig)
     return files
@@ -504,11 +589,16 @@ def run_compare(
     workers: int | None = None,
     quiet: bool = False,
     command: str = "",
+    seeds: int | None = None,
 ) -> dict[str, Any]:
     t0 = time.perf_counter()
     spec = load_compare(path)
+    if seeds is not None:
+        spec = dataclasses.replace(spec, seeds=seeds)
     out.mkdir(parents=True, exist_ok=True)
     labels = [c.label for c in spec.contenders]
+    ref = spec.reference_label
+    speed = spec.max_speed_m_s
 
     def say(line: str) -> None:
         if not quiet:
@@ -519,68 +609,105 @@ def run_compare(
         "source": str(resolve(path)),
         "command": command,
         "contenders": [dataclasses.asdict(c) for c in spec.contenders],
+        "reference": ref,
+        "seeds": spec.seeds,
+        "max_speed_m_s": speed,
+        "plants": {},
     }
-    nominal: dict[str, Any] = {}
-    recs: dict[str, FlightRecord] = {}
-    for c in spec.contenders:
-        nominal[c.label], recs[c.label] = fly(spec, c)
-    result["nominal"] = nominal
-    text = ["## Nominal: the paper scenario, ideal world", "", nominal_table(nominal), ""]
-    say("\n".join(text))
-    figures = plot_nominal(recs, out)
-    worlds: dict[str, dict[str, Any]] = {}
-    for w in spec.worlds:
-        seed = flight_seed(CampaignSpec(name="compare", seed=1), len(worlds))
-        worlds[w] = {c.label: fly(spec, c, w, seed)[0] for c in spec.contenders}
-    result["worlds"] = worlds
-    if worlds:
-        title = "## Each world preset (one flight each, the same world seed)"
-        part = [title, "", worlds_table(worlds, labels), ""]
-        say("\n".join(part))
-        text += part
-        figures.append(plot_worlds(worlds, labels, out))
-    tables: dict[str, dict[str, pa.Table]] = {}
-    specs: dict[str, CampaignSpec] = {}
-    camp: dict[str, dict[str, Any]] = {}
-    flown = 0  # campaign flights flown by this run (the rest were in --work already)
-    if spec.campaigns:
-        n_workers = workers or os.cpu_count() or 1
-        with engine.cluster(n_workers, None) as client:
-            address = client.scheduler.address
+    text: list[str] = []
+    figures: list[Path] = []
+    flown = resumed = 0  # campaign flights flown by this run, and found in --work
+    base = spec.trajectories[0].name  # the scenario every world preset flies
+    n_workers = workers or os.cpu_count() or 1
+    with engine.cluster(n_workers, None) as client:
+
+        def fly_all(flights: list[Flight]) -> list[FlightScore]:
+            return list(client.gather(client.map(fly, flights, pure=False)))
+
+        for plant in spec.plants:
+            say(f"plant {plant}: {len(spec.trajectories)} trajectories, {len(spec.worlds)} worlds, "
+                f"{spec.seeds} seeds each")  # fmt: skip
+            pres: dict[str, Any] = {}
+            # one flight each in calm air (or the trajectory's own world): deterministic
+            det = [(tr, c) for tr in spec.trajectories for c in spec.contenders]
+            scores = fly_all([Flight(c, plant, tr.name, tr.world, 1, speed) for tr, c in det])
+            traj: dict[str, dict[str, FlightScore]] = {}
+            for (tr, c), sc in zip(det, scores, strict=True):
+                traj.setdefault(tr.name + (f" ({tr.world})" if tr.world else ""), {})[c.label] = sc
+            pres["trajectories"] = {k: {lab: v.as_dict() for lab, v in by.items()} for k, by in traj.items()}
+            # the paired Monte Carlo sets: each trajectory in its turbulent world, then the
+            # base scenario in each world preset; every contender the same seeds
+            sets = [(f"{tr.name} in {tr.mc_world}", tr.name, tr.mc_world)
+                    for tr in spec.trajectories if tr.mc_world]  # fmt: skip
+            sets += [(f"{base} in {w}", base, w) for w in spec.worlds]
+            sd = mc_seeds(spec.seeds)
+            jobs = [(title, c, seed) for title, _, _ in sets for c in spec.contenders for seed in sd]
+            where = {title: (scn, w) for title, scn, w in sets}
+            mc_scores = fly_all([Flight(c, plant, *where[t], seed, speed) for t, c, seed in jobs])
+            by_set: dict[str, dict[str, list[FlightScore]]] = {}
+            for (title, c, _), sc in zip(jobs, mc_scores, strict=True):
+                by_set.setdefault(title, {}).setdefault(c.label, []).append(sc)
+            mc = [MonteCarloSet(t, spec.seeds, {lab: tuple(v) for lab, v in by.items()}, ref)
+                  for t, by in by_set.items()]  # fmt: skip
+            pres["monte_carlo"] = [m.as_dict() for m in mc]
+            part = [
+                f"## The {plant} plant",
+                "",
+                "### Each trajectory, one flight (calm air unless named: deterministic)",
+                "",
+                trajectory_table(traj),
+                "",
+                f"### Paired Monte Carlo: {spec.seeds} seeds per set, every contender the same; "
+                f"against `{ref}`",
+                "",
+                monte_carlo_table(mc),
+                "",
+            ]
+            say("\n".join(part))
+            text += part
+            camp: dict[str, dict[str, Any]] = {}
+            tables: dict[str, dict[str, pa.Table]] = {}
+            specs: dict[str, CampaignSpec] = {}
             for source in spec.campaigns:
                 name = Path(source).stem  # a name in configs/campaigns/, or a file
                 tables[name], camp[name] = {}, {}
                 for c in spec.contenders:
-                    cs = campaign_spec(source, c, samples, spec.plant)
+                    cs = campaign_spec(source, c, samples, plant, speed)
                     specs[name] = cs
-                    d = work / f"{name}-{c.slug}"
-                    say(f"campaign {name}, {c.label}: {d}")
-                    flown += run_campaign(cs, d, scheduler=address, quiet=True)["run"]["flown_now"]
+                    d = work / plant / f"{name}-{c.slug}"
+                    say(f"campaign {name}, {c.label}, {plant} plant: {d}")
+                    run = run_campaign(cs, d, scheduler=client.scheduler.address, quiet=True)["run"]
+                    flown += run["flown_now"]
                     t = pq.read_table(d / engine.RESULTS)
+                    resumed += t.num_rows - run["flown_now"]
                     tables[name][c.label] = t
                     camp[name][c.label] = campaign_summary(t, cs)
                 src = Path(specs[name].source).name
-                part = [
-                    f"## Campaign `{name}` ({src}, seed {specs[name].seed})",
-                    "",
-                    campaign_table(camp[name]),
-                    "",
-                ]
+                title = f"### Campaign `{name}` ({src}, seed {specs[name].seed})"
+                part = [title, "", campaign_table(camp[name]), ""]
+                if specs[name].sampler != "grid" and len(spec.contenders) > 1:
+                    part += [f"Paired on the same samples, against `{ref}`:", "",
+                             campaign_paired_table(tables[name], ref), ""]  # fmt: skip
                 say("\n".join(part))
                 text += part
-        figures += plot_campaigns(tables, specs, out)
-    result["campaigns"] = camp
+            pres["campaigns"] = camp
+            figures += plot_campaigns(tables, specs, out, prefix=f"{plant}_")
+            result["plants"][plant] = pres
     result["wall_s"] = time.perf_counter() - t0
     head = [
         f"# {spec.name}",
         "",
-        f"Made by `{command}` ({Path(spec.source).name}; contenders: {'; '.join(labels)}): "
-        f"{result['wall_s']:.0f} s on {os.cpu_count()} cores, {flown} campaign flights flown, "
-        f"{sum(s['flights'] for by in camp.values() for s in by.values()) - flown} resumed from `--work`.",
+        f"Made by `{command}` ({Path(spec.source).name}; contenders: {'; '.join(labels)}; "
+        f"plants: {', '.join(spec.plants)}): {result['wall_s']:.0f} s on {os.cpu_count()} cores, "
+        f"{flown} campaign flights flown, {resumed} resumed from `--work`. Every contender's correction "
+        f"speed limit: {speed:g} m/s (0: its own). Intervals: 95 %, bootstrap for medians and "
+        "percentiles, Clopper-Pearson for loss rates; p: two-sided Wilcoxon signed-rank on the "
+        "paired flights.",
         "",
     ]
     figs = [f"![{f.stem}]({f.name})" for f in figures]
-    (out / "report.md").write_text("\n".join(head + text + ["## Figures", ""] + figs) + "\n")
+    tail = ["## Figures", ""] + figs if figs else []
+    (out / "report.md").write_text("\n".join(head + text + tail) + "\n")
     (out / "comparison.json").write_text(json.dumps(result, indent=2, default=str) + "\n")
     say(f"wrote {out / 'report.md'}, {out / 'comparison.json'} and {len(figures)} figures in {out}")
     return result
