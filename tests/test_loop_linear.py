@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -138,3 +139,27 @@ def test_linearisation_pipeline_on_loop_4_alone_has_the_known_answer() -> None:
     # with its explicit integral leaves 1.05 (+/- 56 deg)
     assert 1.00 < got.disk_margin < 1.10
     assert 53.0 < got.phase_margin_deg < 58.0
+
+
+GAIN_SETS = [
+    ("tlc", "gains_paper.toml"), ("tlc", "gains_tlc_tuned.toml"), ("tlc", "gains_servo_aware.toml"),
+    ("tlc", "gains_tlc_rotor.toml"), ("tlc", "gains_tlc_rotor_tuned.toml"), ("pid", "gains_pid.toml"),
+    ("pid", "gains_pid_table2.toml"), ("pid", "gains_pid_rotor.toml"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(("controller", "gains_file"), GAIN_SETS)
+def test_every_shipped_gain_set_states_its_margins(controller: str, gains_file: str) -> None:
+    """Each gain file's header carries the line `heli-sitl margins` prints for it on both
+    plants with the default servos: recomputed here, verbatim."""
+    from autopilot.pid.gains import PidGains
+    from autopilot.tlc.gains import Gains
+
+    text = (Path(__file__).parents[1] / "configs" / gains_file).read_text()
+    tlc = Gains.load(gains_file) if controller == "tlc" else SC.gains
+    pid = PidGains.load(gains_file) if controller == "pid" else None
+    name, sv = servo_model("servos-default")
+    for plant in ("paper", "gavrilets"):
+        c = build_controller(controller, SC.airframe, tlc, 100.0, pid_gains=pid)
+        line = linearize_loop(c, PlantModel.load(plant), SC.airframe, sv, name).summary()
+        assert text.count(line) == 1, line
