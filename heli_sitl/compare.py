@@ -305,6 +305,12 @@ def largest_converged(t: pa.Table, key: str, fixed: dict[str, float] | None = No
     return best
 
 
+def grid_keys(spec: CampaignSpec) -> tuple[str, ...]:
+    """The varied settings with more than one level (one held at a single level, as the
+    comparison's common speed limit, is no axis of the grid)."""
+    return tuple(v.key for v in spec.vary if v.dist not in ("grid", "choice") or len(v.levels()) > 1)
+
+
 def campaign_summary(t: pa.Table, spec: CampaignSpec) -> dict[str, Any]:
     failed = _flag(t, "failed")
     out: dict[str, Any] = {
@@ -327,7 +333,7 @@ def campaign_summary(t: pa.Table, spec: CampaignSpec) -> dict[str, Any]:
         "p50": percentile_ci(_col(t, "rms_10_m")[ok], 50),
         "p95": percentile_ci(_col(t, "rms_10_m")[ok], 95),
     }
-    keys = spec.keys
+    keys = grid_keys(spec)
     if spec.sampler == "grid" and keys:
         low = {k: float(np.nanmin(_col(t, k))) for k in keys}
         out["largest_converged"] = {
@@ -542,9 +548,9 @@ def plot_campaigns(
             fig.suptitle(
                 f"{name}: {next(iter(by.values())).num_rows} flights each, the same samples", fontsize=10
             )
-        elif len(spec.keys) == 2:  # a 2-D grid: each contender's converged region
+        elif len(grid_keys(spec)) == 2:  # a 2-D grid: each contender's converged region
             fig, ax = plt.subplots(figsize=(6.5, 5))
-            k0, k1 = spec.keys
+            k0, k1 = grid_keys(spec)
             for (lab, t), col in zip(by.items(), COLORS, strict=False):
                 x, y, ok = _col(t, k0), _col(t, k1), _flag(t, "converged")
                 xs, ys = np.unique(x), np.unique(y)
@@ -560,7 +566,7 @@ def plot_campaigns(
             ax.set_title(f"{name}: the boundary of convergence", fontsize=10)
         else:  # a larger grid: converged fraction against the first key
             fig, ax = plt.subplots(figsize=(6.5, 4))
-            k0 = spec.keys[0]
+            k0 = grid_keys(spec)[0]
             for (lab, t), col in zip(by.items(), COLORS, strict=False):
                 x, ok = _col(t, k0), _flag(t, "converged")
                 xs = np.unique(x)
