@@ -460,7 +460,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--quiet", action="store_true")
     t.set_defaults(func=_tune)
 
-    k = sub.add_parser("compare", help="the controllers side by side (trajectories, worlds, campaigns); report")
+    k = sub.add_parser("compare", help="the controllers side by side, paired; report")
     k.add_argument("file", nargs="?", default="compare.toml",
                    help="comparison TOML (default: configs/compare.toml)")
     k.add_argument("--out", required=True, help="report, figures and numbers (e.g. docs/comparison)")
