@@ -194,7 +194,11 @@ def plots(spec: CampaignSpec, table: pa.Table, out: Path) -> list[Path]:
         v = _col(table, m)[ok]
         v = v[np.isfinite(v)]
         if v.size:
-            a.hist(v, bins=min(50, max(5, v.size // 10)), color="steelblue")
+            try:
+                a.hist(v, bins=min(50, max(5, v.size // 10)), color="steelblue")
+            except ValueError:  # a lost flight's 1e8 m beside mm: no finite bins; say so
+                a.text(0.5, 0.5, f"range {v.min():.3g} to {v.max():.3g}", ha="center", fontsize=7,
+                       transform=a.transAxes)  # fmt: skip
         a.set_title(m, fontsize=8)
         a.tick_params(labelsize=7)
     for a in list(axs.flat)[n:]:
