@@ -431,3 +431,19 @@ def test_via_processes_flies_the_in_process_rows_again_over_mavlink(tmp_path: Pa
     for r in res:
         assert r["abs_diff_m"]["rms_0_m"] < 1e-3 and r["abs_diff_m"]["rms_10_m"] < 1e-3, r
     assert (tmp_path / "out" / "via_processes.json").is_file()
+
+
+def test_campaign_plots_survive_a_metric_with_no_finite_bins(tmp_path: Path) -> None:
+    """A lost flight's error near 1e17 m beside others a few metres off it leaves no finite
+    histogram bins (matplotlib raises): the figure states the range and the run goes on."""
+    import pyarrow as pa
+
+    from heli_sitl.campaign.report import plots
+    from heli_sitl.campaign.spec import CampaignSpec
+
+    spec = CampaignSpec(name="huge", metrics=("rms_10_m",))
+    v = [8.2e16] * 139 + [8.2e16 + 16.0]
+    t = pa.table({"sample_id": list(range(140)), "rms_10_m": v, "failed": [False] * 140,
+                  "diverged": [True] * 140, "converged": [False] * 140})  # fmt: skip
+    files = plots(spec, t, tmp_path)
+    assert (tmp_path / "hist.png") in files and (tmp_path / "hist.png").stat().st_size > 5_000
