@@ -1,4 +1,5 @@
-"""The fixed-rate loop: the only code in the autopilot that reads a clock.
+"""The fixed-rate loop: the only code in the autopilot that reads a clock (an injected
+:class:`~autopilot.clock.Clock`, so tests can drive its scheduling on a fake one).
 
 ``lockstep``: each plant state is answered by exactly one command computed at the state's
 simulation time (a re-sent state gets the same answer again). ``realtime``: ticks on the
@@ -14,7 +15,6 @@ import gc
 import logging
 import math
 import threading
-import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,6 +22,7 @@ from typing import IO, Any, Protocol
 
 import numpy as np
 
+from autopilot.clock import Clock, SystemClock
 from autopilot.control import D_PHI_C, D_PSI_C, D_THETA_C, N_DIAG, OK, KernelController
 from autopilot.estimation.config import EstimatorConfig
 from autopilot.estimation.kf import N_EST_LOG
@@ -254,8 +255,11 @@ class Runner:
         services: Sequence[TickService] = (),
         recorder: Recorder | None = None,
         estimator: EstimatorConfig | None = None,
+        *,
+        clock: Clock | None = None,
     ) -> None:
         self.ctrl = ctrl
+        self.clock: Clock = SystemClock() if clock is None else clock  # every time read and sleep of the loop
         self.estimator = estimator or EstimatorConfig()
         # flying from sensors (the plant sends measurements): the estimate the tick flies on
         self.nav: OnboardEstimator | None = None
@@ -307,7 +311,7 @@ class Runner:
             s.at_tick_start(t_s, x)
         self.manager.pre_tick(t_s, x)
         if self._wall0 is None and self.flight.armed:
-            self._wall0 = time.perf_counter()
+            self._wall0 = self.clock.perf_counter()
             self._t_arm_s = t_s
         ref = self.flight.reference(t_s, x)
         if ref is None:  # disarmed: rotor idle at zero pitch, nothing integrates
@@ -402,15 +406,15 @@ class Runner:
         else:
             self._run_realtime(stop, self.state_in)
         if self._wall0 is not None:
-            self.wall_s = time.perf_counter() - self._wall0
+            self.wall_s = self.clock.perf_counter() - self._wall0
         return self.stats
 
     def _run_lockstep(self, stop: threading.Event, src: StateSource) -> None:
         last_t_us = -1
-        last_state = time.monotonic()
+        last_state = self.clock.monotonic()
         while not stop.is_set():
             s = src.latest_state(0.05, spin_s=LOCKSTEP_SPIN_S)
-            now = time.monotonic()
+            now = self.clock.monotonic()
             if s is None:
                 self._stale(now - last_state > self.cfg.stale_timeout_s)
                 if self._last_x is not None:  # vehicle time stands still; the GCS's does not
@@ -435,15 +439,15 @@ class Runner:
         period = 1.0 / self.cfg.rate_hz
         latest: StateSample | None = None
         latest_at = 0.0
-        start = time.monotonic()
+        start = self.clock.monotonic()
         last_tick_wall: float | None = None
         k = 0
         while not stop.is_set():
             deadline = start + k * period
-            delay = deadline - time.monotonic()
+            delay = deadline - self.clock.monotonic()
             if delay > 0:
-                time.sleep(delay)
-            wake = time.monotonic()
+                self.clock.sleep(delay)
+            wake = self.clock.monotonic()
             late = wake - deadline
             if late > self.cfg.skip_after_periods * period:
                 skip = int(late / period)
@@ -462,13 +466,13 @@ class Runner:
             elif latest is not None:
                 self.stats.stale_ticks += 1
             if latest is None:  # the plant has not spoken yet: wait for it, clock not started
-                start = time.monotonic()
+                start = self.clock.monotonic()
                 src.latest_state(0.01)  # keep the socket drained
                 s = src.latest_state(0.0)
                 if s is not None:
                     self.warm_up(s.x)
                     latest = src.latest_state(0.0) or s  # the plant went on meanwhile
-                    latest_at = start = time.monotonic()
+                    latest_at = start = self.clock.monotonic()
                     k = 0
                 continue
             self.stats.lateness_s.append(late)
@@ -485,7 +489,7 @@ class Runner:
             last_tick_wall = wake
             self.sample = latest
             self.tick(t_s, latest.x, latest.t_us)
-            self.stats.work_s.append(time.monotonic() - wake)
+            self.stats.work_s.append(self.clock.monotonic() - wake)
             k += 1
 
 

@@ -57,7 +57,9 @@ from heli_sitl.stats import Interval, Paired, loss_rate, paired, percentile_ci
 
 TOP_KEYS = ("name", "plants", "plant", "reference", "seeds", "max_speed_m_s", "trajectory", "worlds",
             "campaigns", "contender")  # fmt: skip
-CONTENDER_KEYS = ("label", "controller", "gains", "pid_gains", "feedforward")
+CONTENDER_KEYS = ("label", "controller", "gains", "pid_gains", "feedforward", "plant")
+#: what a contender may set per plant ([contender.plant.NAME]): its gains tuned there
+PLANT_KEYS = ("gains", "pid_gains")
 TRAJECTORY_KEYS = ("name", "world", "mc_world")
 COLORS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple")
 #: the metrics the paired tables test, each against the reference contender
@@ -71,10 +73,21 @@ class Contender:
     gains: str = ""  # the TLC's ("": the scenario's)
     pid_gains: str = ""  # "": configs/gains_pid.toml
     feedforward: str = ""  # the TLC's ("": the scenario's)
+    # per plant, the gains it flies there instead: (plant, gains, pid_gains), "" = as above;
+    # "each contender tuned on the plant it flies" ([contender.plant.paper] in compare.toml)
+    on_plant: tuple[tuple[str, str, str], ...] = ()
 
     @property
     def slug(self) -> str:
         return re.sub(r"[^a-z0-9]+", "-", self.label.lower()).strip("-")
+
+    def on(self, plant: str) -> Contender:
+        """The contender as it flies ``plant``: its gains for that plant, if it names any."""
+        for name, gains, pid_gains in self.on_plant:
+            if name == plant:
+                g, pg = gains or self.gains, pid_gains or self.pid_gains
+                return dataclasses.replace(self, gains=g, pid_gains=pg, on_plant=())
+        return dataclasses.replace(self, on_plant=())
 
 
 @dataclass(frozen=True)
@@ -92,6 +105,8 @@ class CompareSpec:
     contenders: tuple[Contender, ...]
     plants: tuple[str, ...] = ("paper",)
     reference: str = ""  # the label every contender is tested against ("": the first)
+    # per plant, another reference: (plant, label); the contender tuned for that plant
+    reference_on: tuple[tuple[str, str], ...] = ()
     seeds: int = 20  # Monte Carlo flights per set
     max_speed_m_s: float = 0.0  # every contender's correction speed limit (0: each its own)
     trajectories: tuple[TrajectorySet, ...] = (TrajectorySet("paper"),)
@@ -102,6 +117,12 @@ class CompareSpec:
     @property
     def reference_label(self) -> str:
         return self.reference or self.contenders[0].label
+
+    def reference_for(self, plant: str) -> str:
+        return dict(self.reference_on).get(plant, self.reference_label)
+
+    def contenders_on(self, plant: str) -> tuple[Contender, ...]:
+        return tuple(c.on(plant) for c in self.contenders)
 
 
 def _names(src: str, t: dict[str, Any], k: str) -> tuple[str, ...]:
@@ -122,9 +143,40 @@ def _tables(src: str, t: dict[str, Any], k: str, keys: tuple[str, ...]) -> list[
         for key, v in c.items():
             if key not in keys:
                 raise ConfigError(f"{where}: unknown key {key!r}; expected one of {', '.join(keys)}")
+            if key == "plant":  # [contender.plant.NAME]: checked by _on_plant
+                continue
             if not isinstance(v, str):
                 raise ConfigError(f"{where}.{key}: expected a string, got {v!r}")
     return raw
+
+
+def _on_plant(where: str, raw: Any) -> tuple[tuple[str, str, str], ...]:
+    """``[contender.plant.NAME]`` tables: the gains a contender flies on plant NAME."""
+    if not isinstance(raw, dict):
+        raise ConfigError(f"{where}.plant: expected tables [{where}.plant.NAME] with gains or pid_gains")
+    out = []
+    for plant, t in raw.items():
+        w = f"{where}.plant.{plant}"
+        if not isinstance(t, dict) or not t:
+            raise ConfigError(f"{w}: expected a table with gains or pid_gains")
+        for k, v in t.items():
+            if k not in PLANT_KEYS:
+                raise ConfigError(f"{w}: unknown key {k!r}; expected one of {', '.join(PLANT_KEYS)}")
+            if not isinstance(v, str) or not v:
+                raise ConfigError(f"{w}.{k}: expected a file name, got {v!r}")
+        out.append((str(plant), str(t.get("gains", "")), str(t.get("pid_gains", ""))))
+    return tuple(out)
+
+
+def _reference(src: str, t: dict[str, Any], labels: list[str]) -> tuple[str, tuple[tuple[str, str], ...]]:
+    """``reference = "label"``, or ``reference = {default = "label", paper = "label"}``."""
+    raw = t.get("reference", "")
+    table = raw if isinstance(raw, dict) else {"default": raw}
+    for k, v in table.items():
+        if not isinstance(v, str) or (v and v not in labels):
+            on = "" if k == "default" else f" on {k}"
+            raise ConfigError(f"{src}: reference{on} {v!r} is not a contender's label ({', '.join(labels)})")
+    return str(table.get("default", "")), tuple((k, str(v)) for k, v in table.items() if k != "default")
 
 
 def load_compare(path: str | Path = "compare.toml") -> CompareSpec:
@@ -142,7 +194,9 @@ def load_compare(path: str | Path = "compare.toml") -> CompareSpec:
     for i, c in enumerate(raw):
         if not c.get("label"):
             raise ConfigError(f"{src}: contender[{i}]: a table with a label")
-        con = Contender(**c)
+        where = f"{src}: contender[{i}]"
+        per = _on_plant(where, c.pop("plant")) if "plant" in c else ()
+        con = Contender(**c, on_plant=per)
         if con.controller not in ("tlc", "pid"):
             raise ConfigError(
                 f'{src}: contender[{i}].controller: expected "tlc" or "pid", got {con.controller!r}'
@@ -155,9 +209,7 @@ def load_compare(path: str | Path = "compare.toml") -> CompareSpec:
     labels = [c.label for c in contenders]
     if len({c.slug for c in contenders}) != len(contenders):
         raise ConfigError(f"{src}: contender labels must differ ({', '.join(labels)})")
-    reference = str(t.get("reference", ""))
-    if reference and reference not in labels:
-        raise ConfigError(f"{src}: reference {reference!r} is not a contender's label ({', '.join(labels)})")
+    reference, reference_on = _reference(src, t, labels)
     plants = _names(src, t, "plants") if "plants" in t else (str(t.get("plant", "paper")),)
     seeds, speed = t.get("seeds", 20), t.get("max_speed_m_s", 0.0)
     if not isinstance(seeds, int) or isinstance(seeds, bool) or not 2 <= seeds <= 10_000:
@@ -169,12 +221,15 @@ def load_compare(path: str | Path = "compare.toml") -> CompareSpec:
         if not tr.name:
             raise ConfigError(f"{src}: trajectory[{i}]: a table with a name")
     spec = CompareSpec(
-        str(t.get("name", p.stem)), tuple(contenders), plants, reference, seeds, float(speed),
+        str(t.get("name", p.stem)), tuple(contenders), plants, reference, reference_on, seeds, float(speed),
         trajs or (TrajectorySet("paper"),), _names(src, t, "worlds"), _names(src, t, "campaigns"), src,
     )  # fmt: skip
+    for plant, _ in reference_on:
+        if plant not in plants:
+            raise ConfigError(f"{src}: reference {plant}: not one of the plants ({', '.join(plants)})")
     for plant in spec.plants:
         PlantModel.load(plant)
-    for con in spec.contenders:  # every file loads before anything flies
+    for con in (c for plant in spec.plants for c in spec.contenders_on(plant)):  # every file loads first
         for tr in spec.trajectories:
             scenario_for(tr.name, con)
         if con.pid_gains:
@@ -603,7 +658,6 @@ def run_compare(
         spec = dataclasses.replace(spec, seeds=seeds)
     out.mkdir(parents=True, exist_ok=True)
     labels = [c.label for c in spec.contenders]
-    ref = spec.reference_label
     speed = spec.max_speed_m_s
 
     def say(line: str) -> None:
@@ -615,7 +669,7 @@ def run_compare(
         "source": str(resolve(path)),
         "command": command,
         "contenders": [dataclasses.asdict(c) for c in spec.contenders],
-        "reference": ref,
+        "reference": {plant: spec.reference_for(plant) for plant in spec.plants},
         "seeds": spec.seeds,
         "max_speed_m_s": speed,
         "plants": {},
@@ -631,11 +685,13 @@ def run_compare(
             return list(client.gather(client.map(fly, flights, pure=False)))
 
         for plant in spec.plants:
+            contenders = spec.contenders_on(plant)  # each with its gains for this plant
+            ref = spec.reference_for(plant)
             say(f"plant {plant}: {len(spec.trajectories)} trajectories, {len(spec.worlds)} worlds, "
                 f"{spec.seeds} seeds each")  # fmt: skip
             pres: dict[str, Any] = {}
             # one flight each in calm air (or the trajectory's own world): deterministic
-            det = [(tr, c) for tr in spec.trajectories for c in spec.contenders]
+            det = [(tr, c) for tr in spec.trajectories for c in contenders]
             scores = fly_all([Flight(c, plant, tr.name, tr.world, 1, speed) for tr, c in det])
             traj: dict[str, dict[str, FlightScore]] = {}
             for (tr, c), sc in zip(det, scores, strict=True):
@@ -647,7 +703,7 @@ def run_compare(
                     for tr in spec.trajectories if tr.mc_world]  # fmt: skip
             sets += [(f"{base} in {w}", base, w) for w in spec.worlds]
             sd = mc_seeds(spec.seeds)
-            jobs = [(title, c, seed) for title, _, _ in sets for c in spec.contenders for seed in sd]
+            jobs = [(title, c, seed) for title, _, _ in sets for c in contenders for seed in sd]
             where = {title: (scn, w) for title, scn, w in sets}
             mc_scores = fly_all([Flight(c, plant, *where[t], seed, speed) for t, c, seed in jobs])
             by_set: dict[str, dict[str, list[FlightScore]]] = {}
@@ -656,8 +712,12 @@ def run_compare(
             mc = [MonteCarloSet(t, spec.seeds, {lab: tuple(v) for lab, v in by.items()}, ref)
                   for t, by in by_set.items()]  # fmt: skip
             pres["monte_carlo"] = [m.as_dict() for m in mc]
+            pres["contenders"] = {c.label: c.gains or c.pid_gains for c in contenders}
             part = [
                 f"## The {plant} plant",
+                "",
+                "Gains flown here: " + "; ".join(f"{c.label} `{c.pid_gains or c.gains or 'the scenario'}`"
+                                                 for c in contenders) + ".",
                 "",
                 "### Each trajectory, one flight (calm air unless named: deterministic)",
                 "",
@@ -677,7 +737,7 @@ def run_compare(
             for source in spec.campaigns:
                 name = Path(source).stem  # a name in configs/campaigns/, or a file
                 tables[name], camp[name] = {}, {}
-                for c in spec.contenders:
+                for c in contenders:
                     cs = campaign_spec(source, c, samples, plant, speed)
                     specs[name] = cs
                     d = work / plant / f"{name}-{c.slug}"
@@ -691,7 +751,7 @@ def run_compare(
                 src = Path(specs[name].source).name
                 title = f"### Campaign `{name}` ({src}, seed {specs[name].seed})"
                 part = [title, "", campaign_table(camp[name]), ""]
-                if specs[name].sampler != "grid" and len(spec.contenders) > 1:
+                if specs[name].sampler != "grid" and len(contenders) > 1:
                     part += [f"Paired on the same samples, against `{ref}`:", "",
                              campaign_paired_table(tables[name], ref), ""]  # fmt: skip
                 say("\n".join(part))

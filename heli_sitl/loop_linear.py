@@ -15,7 +15,8 @@ multivariable margin at the plant input beside them. Nothing is approximated but
 linearisation itself: the rotor, the thrust tilt, the servos' delay and lag, the sampling and
 the differentiators are all in it.
 
-Servos: delay (whole control periods, at most one) and lag linearise exactly; the rate limit,
+Servos: delay (to the nearest control period, as the flights realise it at the control rate)
+and lag linearise exactly; the rate limit,
 quantum and dead band are small-signal inactive and left out (the flights keep them).
 """
 
@@ -34,6 +35,7 @@ from autopilot.control import N_DIAG, KernelController
 from autopilot.reference import N_REF
 from heli_common.airframe import Airframe
 from heli_common.plant_model import PlantModel
+from heli_common.servo_model import SS_FIFO, SS_RING_INDEX
 from heli_common.state import N_PITCH, N_STATE, PITCH_NAMES, FloatArray
 from heli_common.world import Servos, World
 from heli_sitl.plant.model import accept_pitches
@@ -115,10 +117,11 @@ class TickMap:
         servo_s = w.servo_s.copy()
         servo_s[1 : 1 + s.size] = s
         dt = self.controller.dt_s
+        servo_s[SS_RING_INDEX] = 0.0
         y, _ = world_plant_step(0.0, x, held, w.constants, w.air, dt, 1, False, w.wp, ws, w.servo_p, servo_s,
                                 w.dryden, w.rotor)  # fmt: skip
         rr = ws[WS_ROTOR : WS_ROTOR + N_ROTOR] if r.size else r
-        return np.concatenate([y, rr, servo_s[1 : 1 + s.size]])
+        return np.concatenate([y, rr, canonical_fifo(servo_s)[1 : 1 + s.size]])
 
     def control(self, c: FloatArray, x: FloatArray) -> tuple[FloatArray, FloatArray]:
         st = c.copy()
@@ -135,6 +138,18 @@ class TickMap:
         return np.concatenate([self.plant_step(x, r, s, held), st])
 
 
+def canonical_fifo(servo_s: FloatArray) -> FloatArray:
+    """The servos' state with its delay ring rotated so that the next slot to write is slot 0:
+    the ring's index then is the same after every tick, so a tick is one map of the state
+    whatever the delay (a delay of several ticks turns the ring by one slot each tick)."""
+    out = servo_s.copy()
+    fifo = out[SS_FIFO:].reshape(-1, N_PITCH)
+    if fifo.shape[0]:
+        out[SS_FIFO:] = np.roll(fifo, -int(servo_s[SS_RING_INDEX]), axis=0).ravel()
+    out[SS_RING_INDEX] = 0.0
+    return out
+
+
 def _jacobian(f: Any, z0: FloatArray) -> FloatArray:
     return jacobian(f, z0, 1e-7)
 
@@ -143,8 +158,6 @@ def build_tick_map(
     controller: KernelController[Any], model: PlantModel, design: Airframe, servos: Servos
 ) -> tuple[TickMap, FloatArray]:
     """The tick map at a hover of the plant's own trim, and a start for its fixed point."""
-    if any(d > controller.dt_s * (1 + 1e-9) for d in servos.delay_s):
-        raise ValueError("the linearised loop takes servo delays of at most one control period")
     sv = dataclasses.replace(servos, rate_rad_s=(0.0,) * 4, quantum_rad=(0.0,) * 4, deadband_rad=(0.0,) * 4)
     tr = trim(model, design, altitude_m=HOVER_ALT_M)
     x0 = tr.x[:N_STATE].copy()

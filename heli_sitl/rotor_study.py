@@ -35,7 +35,6 @@ from heli_sitl.plant.trim import linearize, trim
 CONTENDERS = (  # label, controller, TLC gains, PID gains
     ("TLC, paper Table 2", "tlc", "gains_paper.toml", ""),
     ("TLC, servo-aware", "tlc", "gains_servo_aware.toml", ""),
-    ("TLC, tuned", "tlc", "gains_tlc_tuned.toml", ""),
     ("PID, tuned", "pid", "gains_paper.toml", "gains_pid.toml"),
 )
 WORLDS = ("ideal", "servos-default", "everything")

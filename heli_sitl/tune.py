@@ -52,6 +52,7 @@ import numpy as np
 from scipy.optimize import differential_evolution, minimize
 
 from autopilot.controllers import build_controller
+from autopilot.design_point import MIN_DISK_MARGIN
 from autopilot.pid.gains import PidGains, default_pid_gains
 from autopilot.scenario import Scenario
 from heli_common.config import as_table, build, to_toml
@@ -222,7 +223,7 @@ class TuneResult:
 class MarginConstraint:
     """Every loop break point's disk margin >= ``min_disk`` on ``plant`` with ``servos``."""
 
-    min_disk: float = 0.66  # +/- 6 dB, +/- 36 deg
+    min_disk: float = MIN_DISK_MARGIN
     plant: str = "gavrilets"
     servos: str = "servos-default"
 
@@ -352,6 +353,8 @@ def gains_toml(result: TuneResult, command: str) -> str:
     """The tuned gains as a config file, its header saying how they were found."""
     t = as_table(result.gains)
     t["name"] = f"{result.controller.upper()}, tuned ({result.evaluations} evaluations)"
+    if result.constraint is not None:  # the margins it was tuned to prove are its design point
+        t["design"] = {"plant": result.constraint.plant, "servos": result.constraint.servos}
     before, after = TuneResult.cost(result.start_flights), TuneResult.cost(result.best_flights)
     lines = [
         f"# {result.controller.upper()} gains tuned by heli_sitl/tune.py (docs/comparison.md): differential",
@@ -379,5 +382,5 @@ def write_gains(result: TuneResult, path: Path, command: str) -> None:
     path.write_text(gains_toml(result, command))
     # what was written loads back to the tuned gains
     loaded = PidGains.load(path) if result.controller == "pid" else type(result.gains).load(path)
-    if loaded != dataclasses.replace(result.gains, name=loaded.name):
+    if loaded != dataclasses.replace(result.gains, name=loaded.name, design=loaded.design):
         raise RuntimeError(f"{path}: the written gains do not load back as tuned")

@@ -447,3 +447,21 @@ def test_campaign_plots_survive_a_metric_with_no_finite_bins(tmp_path: Path) -> 
                   "diverged": [True] * 140, "converged": [False] * 140})  # fmt: skip
     files = plots(spec, t, tmp_path)
     assert (tmp_path / "hist.png") in files and (tmp_path / "hist.png").stat().st_size > 5_000
+
+
+def test_a_campaign_with_failed_flights_exits_non_zero(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A flight that raised is the bench's fault: the command says so and exits 3 (a flight
+    that did not converge is the controller's result and exits 0)."""
+    import heli_sitl.campaign.run as run
+    from heli_sitl.cli import main
+
+    def fake(failed: int) -> object:
+        return lambda *a, **k: {"counts": {"flights": 10, "failed": failed, "diverged": 4}}
+
+    monkeypatch.setattr(run, "run_campaign", fake(0))
+    assert main(["campaign", "robustness", "--out", str(tmp_path)]) == 0
+    monkeypatch.setattr(run, "run_campaign", fake(2))
+    assert main(["campaign", "robustness", "--out", str(tmp_path)]) == 3
+    assert "2 of 10 flights failed" in capsys.readouterr().err

@@ -42,7 +42,7 @@ def test_a_knob_maps_its_unit_interval_onto_its_range_and_back(u: float, log: bo
 
 def test_knobs_cover_both_controllers_alike_and_set_what_they_name() -> None:
     sc = Scenario.load("paper")
-    pid = PidGains.load("gains_pid_table2.toml")
+    pid = PidGains.load("starts/pid_table2.toml")
     kp, kt = pid_knobs(pid), tlc_knobs(sc.gains)
     assert len(kp) == len(kt) == 13  # the same number of degrees of freedom
     g = with_knobs(pid, kp[:1], [1.25])
@@ -57,7 +57,7 @@ def test_knobs_cover_both_controllers_alike_and_set_what_they_name() -> None:
 
 def test_the_cost_is_the_worst_flight_and_the_flights_are_the_simulator_s() -> None:
     sc = Scenario.load("paper")
-    pid = PidGains.load("gains_pid_table2.toml")
+    pid = PidGains.load("starts/pid_table2.toml")
     knobs = pid_knobs(pid)
     tuner = Tuner(sc, "pid", "pseudo", pid, knobs)
     start = [k.from_unit(k.to_unit(getattr(getattr(pid, k.section), k.field)[k.index[0]])) for k in knobs]
@@ -91,7 +91,7 @@ def test_the_margin_constraint_keeps_fragile_candidates_from_flying() -> None:
 @pytest.mark.slow
 def test_a_short_tuning_never_ends_worse_and_writes_gains_that_load_back(tmp_path: Path) -> None:
     sc = Scenario.load("paper")
-    r = tune(sc, "pid", budget=30, start=PidGains.load("gains_pid_table2.toml"))
+    r = tune(sc, "pid", budget=30, start=PidGains.load("starts/pid_table2.toml"))
     before, after = r.cost(r.start_flights), r.cost(r.best_flights)
     print(f"PID tuning, 30 evaluations: {before:.4f} -> {after:.4f} m")
     assert r.evaluations >= 30 and after <= before + 1e-3  # rounding to 4 digits may cost a hair
@@ -122,7 +122,9 @@ gains = "gains_paper.toml"
 [[contender]]
 label = "PID"
 controller = "pid"
-pid_gains = "gains_pid_table2.toml"
+pid_gains = "gains_pid_rotor.toml"
+[contender.plant.paper]             # on the paper plant it flies these instead
+pid_gains = "starts/pid_table2.toml"
 """
 
 GRID = """
@@ -152,6 +154,10 @@ def test_bad_comparison_files_are_refused(tmp_path: Path) -> None:
         ('plant = "gavrilet"\n[[contender]]\nlabel = "a"\n', "expected paper, gavrilets or a plant file"),
         ('reference = "b"\n[[contender]]\nlabel = "a"\n', "reference 'b' is not a contender"),
         ('seeds = 1\n[[contender]]\nlabel = "a"\n', "seeds"),
+        ('[[contender]]\nlabel = "a"\n[contender.plant.paper]\ngain = "x.toml"\n', "unknown key 'gain'"),
+        ('[[contender]]\nlabel = "a"\n[contender.plant.paper]\ngains = "nowhere.toml"\n', "nowhere.toml"),
+        ('reference = {paper = "b"}\n[[contender]]\nlabel = "a"\n', "'b' is not a contender"),
+        ('reference = {gavrilets = "a"}\n[[contender]]\nlabel = "a"\n', "not one of the plants"),
         ('[[trajectory]]\nname = "nowhere"\n[[contender]]\nlabel = "a"\n', "nowhere"),
         ('[[trajectory]]\nname = "paper"\nmc_world = "nowhere"\n[[contender]]\nlabel = "a"\n', "nowhere"),
     ):
@@ -163,6 +169,12 @@ def test_bad_comparison_files_are_refused(tmp_path: Path) -> None:
     assert [c.label for c in shipped.contenders][-1] == "PID, tuned"
     assert shipped.plants == ("gavrilets", "paper")
     assert Contender("TLC, paper Table 2").slug == "tlc-paper-table-2"
+    # each contender flies the gains tuned for the plant it is on; each plant has its reference
+    pid = {c.label: c for c in shipped.contenders}["PID, tuned"]
+    assert pid.on("gavrilets").pid_gains == "gains_pid_rotor.toml"
+    assert pid.on("paper").pid_gains == "gains_pid.toml"
+    assert shipped.reference_for("gavrilets") == "TLC, rotor-aware"
+    assert shipped.reference_for("paper") == "TLC, paper Table 2"
 
 
 @pytest.mark.slow
@@ -175,7 +187,7 @@ def test_compare_reports_the_flights_own_numbers(tmp_path: Path) -> None:
     res = run_compare(f, out, tmp_path / "work", workers=1, quiet=True, command="heli-sitl compare test")
     paper = res["plants"]["paper"]
     # the one flight of a trajectory is the simulator's, scored, with the common speed limit
-    table2 = PidGains.load("gains_pid_table2.toml")
+    table2 = PidGains.load("starts/pid_table2.toml")
     table2 = dataclasses.replace(table2, position=dataclasses.replace(table2.position, max_speed_m_s=5.0))
     sc = Scenario.load("position_step")
     direct = score(simulate(sc, SimOptions(controller="pid", pid_gains=table2)), sc)

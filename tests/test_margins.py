@@ -179,7 +179,8 @@ def test_the_shipped_servo_aware_gains_are_what_the_analysis_chooses(
     paper_gains: Gains, servo_aware: Gains
 ) -> None:
     g, steps = servo_aware_gains(paper_gains, SLOPPY_SERVOS, pm_min_deg=46.0, separation=3.0)
-    assert g == servo_aware
+    # the design point (where the whole loop's margins are proven) is the file's claim, not the analysis'
+    assert dataclasses.replace(g, design=servo_aware.design) == servo_aware
     assert [(s.loop, s.zeta, s.omega_rad_s) for s in steps] == [
         (4, 1.0, 4.8), (3, 0.707, 1.55), (2, 0.707, 0.515), (1, 0.707, 0.17),
     ]  # fmt: skip
@@ -324,7 +325,7 @@ def test_the_pid_rate_loop_at_table2_is_the_tlc_s_loop4(servo: str, paper_gains:
     from autopilot.analysis.pid_margins import pid_loop_margins
     from autopilot.pid.gains import PidGains
 
-    pid = pid_loop_margins(PidGains.load("gains_pid_table2.toml"), SERVO_MODELS[servo])
+    pid = pid_loop_margins(PidGains.load("starts/pid_table2.toml"), SERVO_MODELS[servo])
     tlc = loop_margins(paper_gains, SERVO_MODELS[servo], feedforward=False)
     for ch in ("roll", "pitch", "yaw"):
         p, t = pid.get(4, ch), tlc.get(4, ch)
@@ -339,7 +340,7 @@ def test_the_pid_rate_derivative_adds_phase() -> None:
     from autopilot.analysis.pid_margins import pid_loop_margins
     from autopilot.pid.gains import PidGains
 
-    g = PidGains.load("gains_pid_table2.toml")
+    g = PidGains.load("starts/pid_table2.toml")
     with_d = dataclasses.replace(g, rate=dataclasses.replace(g.rate, kd=(0.3, 0.3, 0.3)))
     a = pid_loop_margins(g, DEFAULT_SERVOS).get(4, "roll")
     b = pid_loop_margins(with_d, DEFAULT_SERVOS).get(4, "roll")

@@ -327,7 +327,7 @@ def numbers_in(gains: object) -> int:
         if dataclasses.is_dataclass(value):
             for sub in dataclasses.fields(value):
                 v = getattr(value, sub.name)
-                n += len(v) if isinstance(v, tuple) else 1
+                n += len(v) if isinstance(v, tuple) else int(isinstance(v, (int, float)))
     return n
 
 

@@ -27,7 +27,7 @@ from heli_common.airframe import Airframe
 from heli_sitl.closed_loop import SimOptions, simulate
 
 
-@pytest.mark.parametrize("gains_file", ["gains_pid_table2.toml", "gains_pid.toml"])
+@pytest.mark.parametrize("gains_file", ["starts/pid_table2.toml", "gains_pid.toml"])
 def test_rate_loop_step_matches_its_design_on_the_hover_inertia(gains_file: str) -> None:
     """About hover the body rates obey J w' = tau - w x J w, and the PID commands
     tau = J alpha + w x J w: each axis is w' = alpha = kp e + ki int(e) - kd w'_filtered,
@@ -50,7 +50,7 @@ def test_rate_loop_step_matches_its_design_on_the_hover_inertia(gains_file: str)
     kp, ki, kd = gains.rate.kp[0], gains.rate.ki[0], gains.rate.kd[0]
     t = np.arange(n) * k.dt_s
     _, theory = signal.step(signal.lti([kp, ki], [1.0 + kd, kp, ki]), T=t)
-    if gains_file == "gains_pid_table2.toml":
+    if gains_file == "starts/pid_table2.toml":
         assert math.sqrt(ki) == pytest.approx(12.0)
         assert kp / (2 * math.sqrt(ki)) == pytest.approx(0.708, abs=1e-3)
     # Euler's discretisation at dt omega_n <= 0.12: within 5 % of the 0.2 step everywhere

@@ -176,3 +176,29 @@ def test_the_margins_command_prints_what_the_gain_file_states() -> None:
     line = out.strip().splitlines()[-1]
     assert line.startswith("# gavrilets plant, servos servos-default: stable, worst disk margin 0.69")
     assert line in (Path(__file__).parents[1] / "configs/gains_tlc_rotor.toml").read_text()
+
+
+def test_the_margins_command_checks_a_gain_file_at_its_design_point(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`--design` flies the file's own [design] plant and servos and says pass or fail, in its
+    exit status too: a set tuned before the constraint (0.07) fails, the rotor-aware set passes."""
+    from heli_sitl.cli import main
+
+    def run(gains: str) -> tuple[int, str]:
+        rc = main(["margins", "--gains", gains, "--design"])
+        return rc, capsys.readouterr().out
+
+    rc, out = run("gains_tlc_rotor.toml")
+    assert rc == 0, out
+    assert out.strip().splitlines()[-1] == (
+        "# design point (gavrilets plant, servos servos-default): passes 0.66 at every break point")
+    # Table 2 with loop 4 four times faster: at its design point (the paper plant, ideal
+    # servos) it no longer holds 0.66
+    text = (Path(__file__).parents[1] / "configs/gains_paper.toml").read_text()
+    assert text.count("omega_rad_s = [12.0, 12.0, 12.0]") == 1
+    bad = tmp_path / "fast_loop4.toml"
+    bad.write_text(text.replace("omega_rad_s = [12.0, 12.0, 12.0]", "omega_rad_s = [48.0, 48.0, 48.0]"))
+    rc, out = run(str(bad))
+    assert rc == 1 and "FAILS: unstable or below 0.66" in out
+

@@ -98,7 +98,7 @@ def main() -> None:  # pragma: no cover - a convenience: python -m autopilot.ana
     from autopilot.tlc.gains import Gains
 
     pid = sys.argv[1] if len(sys.argv) > 1 else "gains_pid.toml"
-    tlcs = sys.argv[2:] or ["gains_tlc_tuned.toml", "gains_paper.toml"]
+    tlcs = sys.argv[2:] or ["gains_paper.toml", "gains_servo_aware.toml"]
     reports = [pid_loop_margins(PidGains.load(pid), sv) for sv in SERVO_MODELS.values()]
     reports += [loop_margins(Gains.load(p), sv) for p in tlcs for sv in SERVO_MODELS.values()]
     print(format_table(reports))

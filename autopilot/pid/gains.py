@@ -7,6 +7,7 @@ import functools
 from dataclasses import dataclass
 from pathlib import Path
 
+from autopilot.design_point import DesignPoint
 from heli_common.config import load, spec
 
 Vec3 = tuple[float, float, float]
@@ -54,6 +55,8 @@ class PidGains:
     attitude: AttitudeGains = spec()
     rate: RateGains = spec()
     limits: PidLimits = spec(default=PidLimits())
+    # the plant and servos its margins are proven for (autopilot/design_point.py)
+    design: DesignPoint = spec(default=DesignPoint())
 
     @classmethod
     def load(cls, path: str | Path = "gains_pid.toml") -> PidGains:

@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from autopilot.design_point import DesignPoint
 from heli_common.config import load, spec
 
 
@@ -60,6 +61,8 @@ class Gains:
     limits: CommandLimits = spec()
     # present: the rotor-aware TLC (loop 5 and the command filter); absent: the paper's
     rotor: RotorAwareGains | None = spec(default=None)
+    # the plant and servos its margins are proven for (autopilot/design_point.py)
+    design: DesignPoint = spec(default=DesignPoint())
 
     @classmethod
     def load(cls, path: str | Path = "gains_paper.toml") -> Gains:
