@@ -33,6 +33,26 @@ settings.register_profile("heli", deadline=None)
 settings.register_profile("thorough", deadline=None, max_examples=2000)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "heli"))
 
+# pytest-xdist (`make test` runs two workers): every test that starts processes (plant,
+# autopilot, ground tools, MAVProxy, MAVSDK, a Dask scheduler, a private network namespace)
+# runs on one worker, one after another, so that real-time flights never share the machine
+# with each other and no two of them race for a free port; the in-process tests fill the
+# other worker. A module here is all process tests; elsewhere a test says so with
+# @pytest.mark.processes.
+PROCESS_MODULES = frozenset({
+    "test_can_processes", "test_cli_and_records", "test_gcs_requests", "test_ground_client",
+    "test_interop_mavproxy", "test_interop_mavsdk", "test_mavlogdump", "test_process_faults",
+    "test_processes", "test_world_processes",
+})  # fmt: skip
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    for item in items:
+        module = item.module.__name__.rsplit(".", 1)[-1] if isinstance(item, pytest.Function) else ""
+        if module in PROCESS_MODULES or item.get_closest_marker("processes") is not None:
+            item.add_marker(pytest.mark.xdist_group("processes"))
+
+
 RATE_HZ = 100.0
 # the compiled loop flies the TLC here; the PID's arrays are there for its signature only
 PID_OFF = PIDController(Airframe.load(), PidGains.load(), RATE_HZ)

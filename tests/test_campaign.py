@@ -273,6 +273,7 @@ def test_samplers_draw_the_declared_marginals() -> None:
 
 
 @pytest.mark.slow
+@pytest.mark.processes
 def test_same_file_same_rows_on_one_and_two_workers(tmp_path: Path) -> None:
     f = small_file(tmp_path)
     run_campaign(f, tmp_path / "a", workers=1, quiet=True)
@@ -315,6 +316,7 @@ def _wait_for_parts(out: Path, n: int, proc: subprocess.Popen[bytes] | None, tim
 
 
 @pytest.mark.slow
+@pytest.mark.processes
 def test_a_real_scheduler_with_two_workers_and_one_killed_mid_way(tmp_path: Path) -> None:
     """``dask scheduler`` and two ``dask worker`` processes on loopback: the campaign gives
     the embedded run's rows; then one worker is SIGKILLed during a second campaign, which
@@ -382,6 +384,7 @@ def test_a_real_scheduler_with_two_workers_and_one_killed_mid_way(tmp_path: Path
 
 
 @pytest.mark.slow
+@pytest.mark.processes
 def test_a_killed_campaign_resumes_without_losing_or_repeating_a_flight(tmp_path: Path) -> None:
     f = small_file(tmp_path)
     f.write_text(
@@ -418,6 +421,7 @@ def test_a_killed_campaign_resumes_without_losing_or_repeating_a_flight(tmp_path
 
 
 @pytest.mark.slow
+@pytest.mark.processes
 def test_via_processes_flies_the_in_process_rows_again_over_mavlink(tmp_path: Path) -> None:
     """--via processes: a sample's scenario, gains, world and estimator written as files and
     flown by plant and autopilot processes in lockstep give the in-process row's RMS."""

@@ -97,6 +97,7 @@ def test_both_controllers_fly_the_paper_in_process_and_nothing_else_changes() ->
         simulate(sc, SimOptions(duration_s=1.0, controller="lqr"))
 
 
+@pytest.mark.processes
 @pytest.mark.slow
 def test_pid_in_lockstep_processes_flies_the_in_process_flight(tmp_path: Path) -> None:
     from ground.plots import read_csv_columns

@@ -154,6 +154,7 @@ def test_a_bad_plant_name_is_refused() -> None:
 @pytest.mark.slow
 # Table 2 on the rotor plant is in a limit cycle (docs/rotor-plant.md); with the servos' rate limits
 # and quantum on top ("everything") it is chaotic, and no two processes of it agree past ~20 s
+@pytest.mark.processes
 @pytest.mark.parametrize(("preset", "tol_m"), [("calm", 1e-3), ("gusty", 1e-3)])
 def test_lockstep_flies_the_in_process_flight_on_the_rotor_plant(
     tmp_path: Path, preset: str, tol_m: float

@@ -147,6 +147,7 @@ def test_a_bad_rotor_section_is_refused_with_its_key(field: str, value: str, mes
         TLController(DESIGN, bad)
 
 
+@pytest.mark.processes
 @pytest.mark.slow
 def test_lockstep_flies_the_in_process_flight(tmp_path: Path) -> None:
     sc = Scenario.load("paper", gains="gains_tlc_rotor.toml")
