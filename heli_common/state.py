@@ -21,6 +21,9 @@ U_F, V_L, W_U = 3, 4, 5  # velocity, body FLU [m/s]
 PHI, THETA, PSI = 6, 7, 8  # ZYX Euler angles [rad]
 P_X, Q_Y, R_Z = 9, 10, 11  # body rates about FLU axes [rad/s]
 N_STATE = 12
+# each element's label (unit last): columns of tables and DataFrames, break points' names
+STATE_NAMES = ("x_m", "y_m", "z_m", "u_m_s", "v_m_s", "w_m_s", "phi_rad", "theta_rad", "psi_rad",
+               "p_rad_s", "q_rad_s", "r_rad_s")  # fmt: skip
 POS = slice(X_N, Z_U + 1)
 VEL = slice(U_F, W_U + 1)
 EULER = slice(PHI, PSI + 1)
@@ -30,6 +33,7 @@ OMEGA = slice(P_X, R_Z + 1)
 THETA_M, THETA_T, EPS, ETA = 0, 1, 2, 3  # main collective, tail collective, long./lat. cyclic
 N_PITCH = 4
 PITCH_NAMES = ("theta_m", "theta_t", "eps", "eta")
+PITCH_LABELS = tuple(f"{n}_rad" for n in PITCH_NAMES)  # the same with their unit
 
 
 def _vec3(name: str, value: Sequence[float]) -> tuple[float, float, float]:

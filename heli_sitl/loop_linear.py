@@ -36,11 +36,11 @@ from autopilot.reference import N_REF
 from heli_common.airframe import Airframe
 from heli_common.plant_model import PlantModel
 from heli_common.servo_model import SS_FIFO, SS_RING_INDEX
-from heli_common.state import N_PITCH, N_STATE, PITCH_NAMES, FloatArray
+from heli_common.state import N_PITCH, N_STATE, PITCH_NAMES, STATE_NAMES, FloatArray
 from heli_common.world import Servos, World
 from heli_sitl.plant.model import accept_pitches
 from heli_sitl.plant.rotor import N_ROTOR
-from heli_sitl.plant.trim import STATE_NAMES, hover_rotor_state, jacobian, trim
+from heli_sitl.plant.trim import hover_rotor_state, jacobian, trim
 from heli_sitl.plant.world.model import WS_ROTOR, WorldModel, world_plant_step
 
 HOVER_ALT_M = 20.0

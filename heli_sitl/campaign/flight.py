@@ -5,14 +5,11 @@ A flight that raises is a row too (``failed``, the error's text), never a lost s
 
 from __future__ import annotations
 
-import math
 import traceback
 from typing import Any
 
-import numpy as np
-
+from autopilot.flight_metrics import FlightMetrics
 from autopilot.metrics import FlightRecord
-from heli_common.state import PHI, THETA
 from heli_sitl.campaign.settings import Flight, apply
 from heli_sitl.campaign.spec import CampaignSpec
 from heli_sitl.closed_loop import SimOptions, simulate
@@ -43,41 +40,9 @@ def flight_seed(spec: CampaignSpec, sample_id: int) -> int:
 
 
 def metrics(rec: FlightRecord, spec: CampaignSpec) -> dict[str, Any]:
-    s = rec.summary()
-    out: dict[str, Any] = {}
-    for name, t0 in (("rms_0_m", "0"), ("rms_10_m", "10"), ("rms_45_m", "45")):
-        out[name] = next((v for k, v in s["rms_pos_err_m"].items() if k.split("-")[0] == t0), math.nan)
-    mx = s["max_pos_err_m"]
-    out["max_err_10_m"] = next((v for k, v in mx.items() if k.split("-")[0] == "10"), math.nan)
-    with np.errstate(invalid="ignore"):
-        tilt = np.arccos(np.clip(np.cos(rec.x[:, PHI]) * np.cos(rec.x[:, THETA]), -1.0, 1.0))
-        dt = np.diff(rec.t_s)[:, None]
-        rate = np.abs(np.diff(rec.pitches, axis=0)) / dt if rec.t_s.size > 1 else np.zeros((1, 4))
-    out["max_tilt_rad"] = float(np.nanmax(tilt)) if tilt.size else math.nan
-    out["saturated_ticks"] = int(s["saturated_ticks"])
-    out["max_servo_rate_rad_s"] = float(np.nanmax(rate)) if rate.size else math.nan
-    out["pitch_travel_rad"] = float(np.nansum(np.abs(np.diff(rec.pitches, axis=0))))
-    err = rec.pos_err_m
-    above = np.flatnonzero(~(err < spec.converge_m))  # NaN counts as above
-    t_end = float(rec.t_s[-1])
-    out["converge_s"] = (
-        float(rec.t_s[above[-1] + 1])
-        if above.size and above[-1] + 1 < err.size
-        else (float(rec.t_s[0]) if not above.size else math.nan)
-    )
-    out["converged"] = not math.isnan(out["converge_s"]) and out["converge_s"] <= t_end
-    # lost: the state blew up, or the flight did not come back after tumbling or running
-    # away (a flight that tumbles and recovers has converged; its max_tilt_rad says so)
-    reason = ""
-    if not np.all(np.isfinite(rec.x)):
-        reason = "non-finite state"
-    elif not out["converged"] and np.nanmax(tilt) > math.pi / 2:
-        reason = "tumbled (tilt > 90 deg)"
-    elif not out["converged"] and np.nanmax(err) > err[0] + spec.diverge_m:
-        reason = f"ran away (error > initial + {spec.diverge_m:g} m)"
-    out["diverged"] = bool(reason)
-    out["diverged_reason"] = reason
-    return {k: out[k] for k in spec.metrics}
+    """The campaign's columns of one flight: :class:`FlightMetrics`, the one parser."""
+    row = FlightMetrics.of(rec, spec.converge_m, spec.diverge_m).row()
+    return {k: row[k] for k in spec.metrics}
 
 
 def fly(

@@ -30,6 +30,7 @@ from heli_common.state import (
     PITCH_NAMES,
     Q_Y,
     R_Z,
+    STATE_NAMES,
     THETA,
     THETA_M,
     THETA_T,
@@ -49,8 +50,6 @@ from heli_sitl.plant.world.model import (
     world_parameters,
 )
 
-STATE_NAMES = ("x_m", "y_m", "z_m", "u_m_s", "v_m_s", "w_m_s", "phi_rad", "theta_rad", "psi_rad",
-               "p_rad_s", "q_rad_s", "r_rad_s")  # fmt: skip
 TRIM_ALTITUDE_M = 20.0  # out of ground effect
 
 

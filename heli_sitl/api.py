@@ -1,0 +1,240 @@
+"""The bench from Python: one call flies a flight and returns it typed.
+
+>>> import heli_sitl as hs
+>>> f = hs.simulate()                                     # the paper's scenario, plant, TLC
+>>> round(f.metrics.rms_m["45-120"], 4)
+0.0402
+>>> f.status
+<ExitStatus.COMPLETED: 'completed'>
+>>> g = hs.simulate("position_step", plant="gavrilets", world="breezy",
+...                 controller=hs.TLC("gains_tlc_rotor.toml"), seed=3)
+>>> g.metrics.lost
+False
+
+Every argument takes a preset name, a file path or the object itself (a
+:class:`~autopilot.scenario.Scenario`, :class:`~heli_common.plant_model.PlantModel`,
+:class:`~heli_common.world.World`, :class:`~autopilot.estimation.config.EstimatorConfig`);
+a bad one raises :class:`~heli_common.config.ConfigError` naming it. The flight itself never
+raises: a flight whose numerics fail is returned with ``status`` FAILED and its ``error``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from autopilot.estimation.config import EstimatorConfig
+from autopilot.flight_metrics import FlightMetrics
+from autopilot.metrics import FlightRecord
+from autopilot.pid.gains import PidGains
+from autopilot.scenario import Scenario
+from autopilot.tlc.gains import Gains
+from heli_common.config import ConfigError
+from heli_common.plant_model import PlantModel
+from heli_common.state import PITCH_LABELS, STATE_NAMES, FloatArray
+from heli_common.world import World
+from heli_sitl.closed_loop import SimOptions
+from heli_sitl.closed_loop import simulate as _simulate
+
+if TYPE_CHECKING:
+    import pandas as pd
+    import pyarrow as pa
+    from matplotlib.axes import Axes
+
+REF_LABELS = ("x_ref_m", "y_ref_m", "z_ref_m", "u_ref_m_s", "v_ref_m_s", "w_ref_m_s",
+              "ax_ref_m_s2", "ay_ref_m_s2", "az_ref_m_s2")  # fmt: skip
+
+
+class ExitStatus(enum.Enum):
+    COMPLETED = "completed"  # flown to the end, not lost
+    LOST = "lost"  # flown, but the vehicle tumbled, ran away or its state blew up
+    FAILED = "failed"  # the simulation itself raised (see Flight.error)
+
+
+@dataclass(frozen=True)
+class TLC:
+    """The trajectory linearization controller with a gain file (or :class:`Gains`)."""
+
+    gains: str | Path | Gains = "gains_paper.toml"
+    feedforward: str | None = None  # "pseudo" or "exact"; None: the scenario's
+
+    def load(self) -> Gains:
+        return self.gains if isinstance(self.gains, Gains) else Gains.load(self.gains)
+
+
+@dataclass(frozen=True)
+class PID:
+    """The cascaded PID baseline with a gain file (or :class:`PidGains`)."""
+
+    gains: str | Path | PidGains = "gains_pid.toml"
+
+    def load(self) -> PidGains:
+        return self.gains if isinstance(self.gains, PidGains) else PidGains.load(self.gains)
+
+
+Controller = TLC | PID
+
+
+@dataclass(frozen=True)
+class Flight:
+    """One flight: its time, named state, reference and command arrays, its metrics and how
+    it ended. ``record`` is the simulator's own record (every array it keeps)."""
+
+    scenario: str
+    plant: str
+    world: str
+    controller: str
+    status: ExitStatus
+    metrics: FlightMetrics | None  # None when the flight FAILED
+    record: FlightRecord | None
+    error: str = ""
+
+    @property
+    def t_s(self) -> FloatArray:
+        return self._rec.t_s
+
+    @property
+    def state(self) -> FloatArray:
+        """(N, 12) plant state, columns :data:`STATE_LABELS` (earth NWU position, body FLU
+        velocity and rates, ZYX Euler angles)."""
+        return self._rec.x
+
+    @property
+    def reference(self) -> FloatArray:
+        """(N, 9) commanded position, velocity, acceleration, columns :data:`REF_LABELS`."""
+        return self._rec.ref
+
+    @property
+    def pitches(self) -> FloatArray:
+        """(N, 4) commanded blade pitches [rad], columns :data:`PITCH_LABELS`."""
+        return self._rec.pitches
+
+    @property
+    def _rec(self) -> FlightRecord:
+        if self.record is None:
+            raise ValueError(f"this flight failed and has no arrays: {self.error}")
+        return self.record
+
+    def columns(self) -> dict[str, FloatArray]:
+        """Every per-tick array by its label: time, state, reference, pitches, error."""
+        r = self._rec
+        out: dict[str, FloatArray] = {"t_s": r.t_s}
+        out.update({n: r.x[:, i] for i, n in enumerate(STATE_NAMES)})
+        out.update({n: r.ref[:, i] for i, n in enumerate(REF_LABELS)})
+        out.update({n: r.pitches[:, i] for i, n in enumerate(PITCH_LABELS)})
+        out["pos_err_m"] = r.pos_err_m
+        out["saturated"] = np.asarray(r.saturated, dtype=float)
+        return out
+
+    def to_pandas(self) -> pd.DataFrame:
+        import pandas as pd
+
+        return pd.DataFrame(self.columns()).set_index("t_s")
+
+    def to_arrow(self) -> pa.Table:
+        import pyarrow as pa
+
+        return pa.table(self.columns())
+
+    def plot(self, ax: Axes | None = None) -> Axes:
+        """The 3-D position error against time (the figure every comparison starts from)."""
+        if ax is None:
+            import matplotlib.pyplot as plt
+
+            _, ax = plt.subplots(figsize=(7, 3))
+        ax.plot(self.t_s, self._rec.pos_err_m, lw=0.8)
+        ax.set_xlabel("t [s]")
+        ax.set_ylabel("position error [m]")
+        ax.set_title(f"{self.scenario}, {self.plant} plant, {self.world}, {self.controller}: "
+                     f"{self.status.value}")  # fmt: skip
+        return ax
+
+    def save(self, directory: str | Path) -> Path:
+        """``flight.parquet`` (every column) and ``flight.json`` (what flew, how it ended,
+        the metrics) in ``directory``; returns the directory."""
+        import pyarrow.parquet as pq
+
+        d = Path(directory)
+        d.mkdir(parents=True, exist_ok=True)
+        if self.record is not None:
+            pq.write_table(self.to_arrow(), d / "flight.parquet")
+        meta: dict[str, Any] = {
+            "scenario": self.scenario, "plant": self.plant, "world": self.world,
+            "controller": self.controller, "status": self.status.value, "error": self.error,
+            "metrics": None if self.metrics is None else dataclasses.asdict(self.metrics),
+        }  # fmt: skip
+        (d / "flight.json").write_text(json.dumps(meta, indent=2, default=float) + "\n")
+        return d
+
+
+def _scenario(scenario: str | Path | Scenario, controller: Controller | str | None) -> Scenario:
+    sc = scenario if isinstance(scenario, Scenario) else Scenario.load(scenario)
+    if isinstance(controller, TLC):
+        sc = dataclasses.replace(sc, gains=controller.load())
+        if controller.feedforward is not None:
+            sc = dataclasses.replace(sc, run=dataclasses.replace(sc.run, feedforward=controller.feedforward))
+    return sc
+
+
+def _name(v: object, default: str) -> str:
+    if v is None:
+        return default
+    if isinstance(v, (str, Path)):
+        return Path(v).stem if Path(v).suffix else str(v)
+    return str(getattr(v, "name", type(v).__name__))
+
+
+def simulate(
+    scenario: str | Path | Scenario = "paper",
+    plant: str | Path | PlantModel = "paper",
+    world: str | Path | World | None = None,
+    controller: Controller | str | None = None,
+    estimator: str | Path | EstimatorConfig | None = None,
+    duration_s: float | None = None,
+    seed: int | None = None,
+) -> Flight:
+    """Fly ``scenario`` in-process on ``plant`` in ``world`` (None: the paper's ideal world)
+    with ``controller`` (a :class:`TLC` or :class:`PID`, or "tlc"/"pid" with their shipped
+    gains; None: the scenario's TLC). ``seed`` seeds the world's turbulence and sensors.
+    ``estimator`` tunes the navigation filter where the world has sensors."""
+    if isinstance(controller, str) and controller not in ("tlc", "pid"):
+        raise ConfigError(f"controller: expected 'tlc', 'pid', hs.TLC(...) or hs.PID(...), "
+                          f"got {controller!r}")  # fmt: skip
+    sc = _scenario(scenario, controller)
+    pm = plant if isinstance(plant, PlantModel) else PlantModel.load(plant)
+    w = world if isinstance(world, World) or world is None else World.load(world)
+    if seed is not None:
+        w = w or World()
+        w = dataclasses.replace(w, seed=seed, sensors=dataclasses.replace(w.sensors, seed=seed))
+    est = estimator if isinstance(estimator, EstimatorConfig) or estimator is None else (
+        EstimatorConfig.load(estimator))
+    use_pid = isinstance(controller, PID) or controller == "pid"
+    opts = SimOptions(
+        duration_s=duration_s, world=w, estimator=est or EstimatorConfig(), plant=pm,
+        controller="pid" if use_pid else "tlc",
+        pid_gains=controller.load() if isinstance(controller, PID) else None,
+    )  # fmt: skip
+    label = "PID" if use_pid else "TLC"
+    gains = controller.gains if isinstance(controller, (TLC, PID)) else None
+    ctl = f"{label} ({_name(gains, 'shipped gains')})" if gains is not None else label
+    what = dict(scenario=_name(scenario, "paper"), plant=_name(plant, "paper"), world=_name(world, "ideal"),
+                controller=ctl)  # fmt: skip
+    try:
+        rec = _simulate(sc, opts)
+    except (FloatingPointError, np.linalg.LinAlgError, ZeroDivisionError, OverflowError) as exc:
+        return Flight(**what, status=ExitStatus.FAILED, metrics=None, record=None,
+                      error=f"{type(exc).__name__}: {exc}")  # fmt: skip
+    m = FlightMetrics.of(rec)
+    status = ExitStatus.LOST if m.lost else ExitStatus.COMPLETED
+    return Flight(**what, status=status, metrics=m, record=rec)
+
+
+STATE_LABELS = STATE_NAMES
+
+__all__ = ["PID", "REF_LABELS", "STATE_LABELS", "TLC", "ExitStatus", "Flight", "FlightMetrics", "simulate"]
