@@ -22,7 +22,7 @@ CONVERGE_M = 0.5  # converged: the error stays below this to the end
 DIVERGE_M = 50.0  # ran away: the error grows this far beyond its start
 
 
-def _window_value(by_window: Mapping[str, float], start_s: float) -> float:
+def window_value(by_window: Mapping[str, float], start_s: float) -> float:
     """The figure of the window that starts at ``start_s`` ("45-120" starts at 45), NaN if the
     flight was too short to have one."""
     return next((v for k, v in by_window.items() if float(k.split("-")[0]) == start_s), math.nan)
@@ -47,19 +47,19 @@ class FlightMetrics:
 
     @property
     def rms_0_m(self) -> float:
-        return _window_value(self.rms_m, 0.0)
+        return window_value(self.rms_m, 0.0)
 
     @property
     def rms_10_m(self) -> float:
-        return _window_value(self.rms_m, 10.0)
+        return window_value(self.rms_m, 10.0)
 
     @property
     def rms_45_m(self) -> float:
-        return _window_value(self.rms_m, 45.0)
+        return window_value(self.rms_m, 45.0)
 
     @property
     def max_err_after_10_s_m(self) -> float:
-        return _window_value(self.max_err_m, 10.0)
+        return window_value(self.max_err_m, 10.0)
 
     @classmethod
     def of(

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from autopilot.estimation.config import EstimatorConfig
+from autopilot.flight_metrics import window_value
 from autopilot.scenario import Scenario
 from heli_common.sensors import Baro, Gps, Sensors
 from heli_common.world import World
@@ -32,23 +33,19 @@ LAG_S = (0.0, 0.1, 0.2, 0.5, 1.0, 1.5, 2.0)
 WANDER_M = (0.0, 0.1, 0.2, 0.3, 0.5, 0.75, 1.0, 1.5, 2.1)
 
 
-def _window_key(d: dict[str, float], t0: str) -> float:
-    return next(v for k, v in d.items() if k.startswith(f"{t0}-"))
-
-
 def fly(sc: Scenario, world: World, est: EstimatorConfig) -> dict[str, Any]:
     s = simulate(sc, SimOptions(world=world, estimator=est)).summary()
     out = {
-        "rms45_m": _window_key(s["rms_pos_err_m"], "45"),
-        "max10_m": _window_key(s["max_pos_err_m"], "10"),
+        "rms45_m": window_value(s["rms_pos_err_m"], 45.0),
+        "max10_m": window_value(s["max_pos_err_m"], 10.0),
         "realtime_factor": s["realtime_factor"],
     }
     if "estimate" not in s:  # sensors off: the truth
         return out
     e = s["estimate"]
     return out | {
-        "seen_rms45_m": _window_key(e["rms_pos_err_seen_m"], "45"),
-        "est_rms45_m": _window_key(e["rms_est_err_m"], "45"),
+        "seen_rms45_m": window_value(e["rms_pos_err_seen_m"], 45.0),
+        "est_rms45_m": window_value(e["rms_est_err_m"], 45.0),
         "gps_fixes": e["gps_fixes"],
         "mean_nis": e["mean_nis"],
     }

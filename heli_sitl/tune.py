@@ -53,6 +53,7 @@ from scipy.optimize import differential_evolution, minimize
 
 from autopilot.controllers import build_controller
 from autopilot.design_point import MIN_DISK_MARGIN
+from autopilot.flight_metrics import FlightMetrics
 from autopilot.pid.gains import PidGains, default_pid_gains
 from autopilot.scenario import Scenario
 from heli_common.config import as_table, build, to_toml
@@ -185,13 +186,12 @@ class FlightCost:
 
 def flight_cost(scenario: Scenario, opts: SimOptions, world_name: str) -> FlightCost:
     rec = simulate(scenario, opts)
-    s = rec.summary()
-    rms = {k.split("-")[0]: v for k, v in s["rms_pos_err_m"].items()}
-    mx = {k.split("-")[0]: v for k, v in s["max_pos_err_m"].items()}
-    sat = s["saturated_ticks"] / max(1, rec.t_s.size)
-    finite = bool(np.all(np.isfinite(rec.x))) and math.isfinite(rms["10"])
-    cost = rms["10"] + SATURATION_WEIGHT_M * sat if finite else DIVERGED_COST_M
-    return FlightCost(world_name, rms["10"], rms.get("45", math.nan), mx["10"], sat, cost, scenario.run.name)
+    m = FlightMetrics.of(rec)
+    sat = m.saturated_fraction
+    finite = bool(np.all(np.isfinite(rec.x))) and math.isfinite(m.rms_10_m)
+    cost = m.rms_10_m + SATURATION_WEIGHT_M * sat if finite else DIVERGED_COST_M
+    return FlightCost(world_name, m.rms_10_m, m.rms_45_m, m.max_err_after_10_s_m, sat, cost,
+                      scenario.run.name)  # fmt: skip
 
 
 @dataclass

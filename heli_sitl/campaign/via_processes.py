@@ -12,6 +12,7 @@ from typing import Any
 
 import pyarrow.parquet as pq
 
+from autopilot.flight_metrics import window_value
 from autopilot.pid.gains import default_pid_gains
 from heli_common.config import as_table, read_toml, to_toml
 from heli_sitl.campaign import engine
@@ -82,8 +83,8 @@ def compare(
         windows = summary["rms_pos_err_m"]
         assert isinstance(windows, dict)
         proc = {
-            k: next((v for w, v in windows.items() if w.split("-")[0] == t0), math.nan)
-            for k, t0 in (("rms_0_m", "0"), ("rms_10_m", "10"), ("rms_45_m", "45"))
+            k: window_value(windows, t0)
+            for k, t0 in (("rms_0_m", 0.0), ("rms_10_m", 10.0), ("rms_45_m", 45.0))
         }
         inproc = rows.get(sid, {})
         diff = {k: abs(proc[k] - inproc.get(k, math.nan)) for k in proc}
