@@ -328,7 +328,8 @@ class CanServoEndpoint(Closing):
             self.stats["timeouts"] += 1
             since = self.last_accept_s if self.last_accept_s is not None else self.first_poll_s
             log.warning(
-                "CAN servo: no valid command for %.3f s (timeout %.3f s); holding %s",
+                "CAN servo: no valid command for %.3f s (timeout %.3f s: the autopilot has ended its "
+                "flight, or the bus is down); holding %s",
                 now_s - (since if since is not None else now_s), self.timeout_s,
                 self._held_text(),
             )  # fmt: skip

@@ -147,7 +147,9 @@ class PlantServer:
     def _mark_silent(self, silent: bool) -> None:
         if silent and not self.stats.autopilot_silent:
             self.stats.silent_events += 1
-            log.warning("autopilot silent for %.2f s: holding the last command", self.cfg.timeout_s)
+            # the usual cause is benign (the autopilot ended its flight first); say both
+            log.warning("no command from the autopilot for %.2f s (it has ended its flight, or its link "
+                        "is down): holding the last command", self.cfg.timeout_s)  # fmt: skip
         elif not silent and self.stats.autopilot_silent:
             log.info("autopilot back")
         self.stats.autopilot_silent = silent
