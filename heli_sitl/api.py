@@ -23,6 +23,7 @@ from __future__ import annotations
 import dataclasses
 import enum
 import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -37,6 +38,7 @@ from autopilot.scenario import Scenario
 from autopilot.tlc.gains import Gains
 from heli_common.config import ConfigError
 from heli_common.plant_model import PlantModel
+from heli_common.sensors import SEED_MAX
 from heli_common.state import PITCH_LABELS, STATE_NAMES, FloatArray
 from heli_common.world import World
 from heli_sitl.closed_loop import SimOptions
@@ -206,6 +208,12 @@ def simulate(
     if isinstance(controller, str) and controller not in ("tlc", "pid"):
         raise ConfigError(f"controller: expected 'tlc', 'pid', hs.TLC(...) or hs.PID(...), "
                           f"got {controller!r}")  # fmt: skip
+    # checked here: a replaced seed or an odd duration would pass no config file's checks
+    finite_positive = isinstance(duration_s, (int, float)) and 0.0 < duration_s < math.inf
+    if duration_s is not None and not finite_positive:
+        raise ConfigError(f"duration_s: expected a positive finite number of seconds, got {duration_s!r}")
+    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= SEED_MAX):
+        raise ConfigError(f"seed: expected an integer in [0, {SEED_MAX}], got {seed!r}")
     sc = _scenario(scenario, controller)
     pm = plant if isinstance(plant, PlantModel) else PlantModel.load(plant)
     w = world if isinstance(world, World) or world is None else World.load(world)

@@ -101,6 +101,11 @@ def test_a_lost_flight_says_so() -> None:
     ({"world": "stormy"}, "stormy"),
     ({"controller": "lqr"}, "controller"),
     ({"controller": hs.TLC("no_such_gains.toml")}, "no_such_gains.toml"),
+    ({"estimator": "nope"}, "nope"),
+    ({"seed": -1}, "seed"),
+    ({"seed": 2**60}, "seed"),
+    ({"duration_s": -5.0}, "duration_s"),
+    ({"duration_s": float("nan")}, "duration_s"),
 ])  # fmt: skip
 def test_bad_arguments_raise_a_config_error_naming_them(kwargs: dict[str, object], expected: str) -> None:
     with pytest.raises(ConfigError, match=expected):
