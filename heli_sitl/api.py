@@ -212,7 +212,8 @@ def simulate(
     finite_positive = isinstance(duration_s, (int, float)) and 0.0 < duration_s < math.inf
     if duration_s is not None and not finite_positive:
         raise ConfigError(f"duration_s: expected a positive finite number of seconds, got {duration_s!r}")
-    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= SEED_MAX):
+    good_seed = isinstance(seed, int) and not isinstance(seed, bool) and 0 <= seed <= SEED_MAX
+    if seed is not None and not good_seed:
         raise ConfigError(f"seed: expected an integer in [0, {SEED_MAX}], got {seed!r}")
     sc = _scenario(scenario, controller)
     pm = plant if isinstance(plant, PlantModel) else PlantModel.load(plant)
