@@ -26,9 +26,9 @@ from benchmarks import bench
 from heli_common.airframe import Airframe
 from heli_common.can.bus import CanBusConfig
 from heli_common.can.dronecan_codec import ArrayCommandEncoder, float16_round
+from heli_plant.can_endpoint import CanServoEndpoint
 from heli_sitl.can_closed_loop import fly_over_can
 from heli_sitl.closed_loop import simulate
-from heli_sitl.plant.can_endpoint import CanServoEndpoint
 
 Row = tuple[str, float, str, str]
 TICK_HZ = 100.0

@@ -23,8 +23,8 @@ from autopilot.tlc.controller import N_DIAG, TLController, tlc_kernel
 from benchmarks import Row, above, below, bench
 from heli_common.plant_model import PlantModel
 from heli_common.state import N_PITCH, POS
+from heli_plant.model import Plant, plant_step
 from heli_sitl.closed_loop import SimOptions, simulate
-from heli_sitl.plant.model import Plant, plant_step
 
 SCENARIO = "paper"
 

@@ -22,7 +22,7 @@ import numba
 F = TypeVar("F", bound=Callable[..., Any])
 
 _ROOT = Path(__file__).resolve().parent.parent
-_JIT_PACKAGES = ("heli_common", "heli_sitl", "autopilot")
+_JIT_PACKAGES = ("heli_common", "heli_plant", "heli_sitl", "autopilot")
 
 
 def _source_hash() -> str:

@@ -6,7 +6,7 @@ the nonlinear X-Cell 60 model of Gavrilets, Mettler & Feron (AIAA GNC 2001) and 
 thesis (MIT 2003): first-order tip-path-plane flapping with the Bell-Hiller bar's time
 constant, hub spring, governed rotor speed, tail rotor with fin blockage, horizontal
 stabilizer, fuselage drag and ground effect. The physics is in
-:mod:`heli_sitl.plant.rotor`; this module only reads the file into frozen dataclasses, so
+:mod:`heli_plant.rotor`; this module only reads the file into frozen dataclasses, so
 the autopilot's analysis tools, the campaigns and the command line can name the same plant.
 The sources and what was and was not verified against them: ``docs/rotor-plant.md``.
 """

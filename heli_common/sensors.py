@@ -7,7 +7,7 @@ configured) gives the autopilot the true state exactly. Switching a sensor ``on`
 its error model: its own sample rate, latency (GPS, attitude), white noise, bias and bias
 random walk, GPS Gauss-Markov wander, barometer drift. The failures (``freeze``, a step
 bias from ``fault_start_s``, GPS loss with ``gps.disabled``) act whether the error model
-is on or not. The models themselves live in :mod:`heli_sitl.plant.sensors`; the numbers,
+is on or not. The models themselves live in :mod:`heli_plant.sensors`; the numbers,
 conventions and sources are in ``docs/sensors.md``.
 
 Units are SI; frames earth NWU, body FLU (:mod:`heli_common.measurements`). A noise

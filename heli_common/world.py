@@ -3,7 +3,7 @@ model mismatch and injected disturbances. TOML -> frozen dataclasses (``--world 
 
 Every table and key is optional and every effect is off by default: an empty file (or no
 ``--world``) is the paper's ideal world, and the plant then runs exactly the code it ran
-before the world existed. The physics lives in :mod:`heli_sitl.plant.world`; this module
+before the world existed. The physics lives in :mod:`heli_plant.world`; this module
 only says what is asked for, so the autopilot's ground-station parameters (``SIM_*``) and
 the campaigns can name the same settings. Units are SI unless a name says otherwise
 (``_deg``); directions follow ArduPilot's SIM_WIND_* convention: the direction the wind

@@ -5,7 +5,7 @@ the launchers that start plant, autopilot and ground script as processes."""
 from typing import Any
 
 # The Python API (heli_sitl/api.py), imported on first use: the plant process imports
-# heli_sitl.plant and must not pay for (or depend on) the composing layer above it.
+# heli_plant and must not pay for (or depend on) the composing layer above it.
 _API = ("PID", "TLC", "ExitStatus", "Flight", "FlightMetrics", "simulate", "STATE_LABELS", "REF_LABELS")
 
 

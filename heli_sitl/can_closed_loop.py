@@ -26,8 +26,8 @@ from heli_common.can.bus import CanBusConfig
 from heli_common.can.dronecan_codec import DEFAULT_ACTUATOR_IDS
 from heli_common.defaults import HOME
 from heli_common.state import N_PITCH, FloatArray
-from heli_sitl.plant.can_endpoint import DEFAULT_TIMEOUT_S, CanServoEndpoint
-from heli_sitl.plant.model import Plant
+from heli_plant.can_endpoint import DEFAULT_TIMEOUT_S, CanServoEndpoint
+from heli_plant.model import Plant
 
 
 @dataclass(frozen=True)

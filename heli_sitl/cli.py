@@ -132,7 +132,7 @@ def _tune(args: argparse.Namespace) -> int:
 def _trim(args: argparse.Namespace) -> int:
     from heli_common.plant_model import PlantModel
     from heli_common.scenario_file import load_vehicle
-    from heli_sitl.plant.trim import linearize, trim
+    from heli_plant.trim import linearize, trim
 
     design = load_vehicle(args.scenario)[0]
     model = PlantModel.load(args.plant)
@@ -219,8 +219,8 @@ def _run(args: argparse.Namespace) -> int:
     from heli_common.plant_model import PlantModel
     from heli_common.scenario_file import load_vehicle
     from heli_common.servo_link import load_servo_link, with_overrides
-    from heli_sitl.plant.model import Plant
-    from heli_sitl.plant.server import PlantServer, SimConfig
+    from heli_plant.model import Plant
+    from heli_plant.server import PlantServer, SimConfig
 
     arg.resolve_instance(args, {"port": "plant", "autopilot_port": "autopilot"})
     if args.port == args.autopilot_port:  # it would only hear its own states
@@ -250,8 +250,8 @@ def _run(args: argparse.Namespace) -> int:
         can = None
         servo_in = None
         if servo.link == "can":
-            from heli_sitl.plant.can_endpoint import CanServoEndpoint
-            from heli_sitl.plant.servo_inputs import CanServoInput
+            from heli_plant.can_endpoint import CanServoEndpoint
+            from heli_plant.servo_inputs import CanServoInput
 
             can = CanServoEndpoint(servo.can_bus, limits=airframe.limits, actuator_ids=servo.actuator_ids,
                                    timeout_s=servo.timeout_s)  # fmt: skip

@@ -3,8 +3,8 @@
 This loop is the only owner of time here: tick k is at t = k / rate, the controller sees
 the state at t, its pitches are held (zero-order hold) while the plant integrates to t+dt.
 The loop itself is compiled and calls the very kernels the processes use
-(:func:`~autopilot.tlc.controller.tlc_kernel`, :func:`~heli_sitl.plant.model.plant_step`,
-:func:`~heli_sitl.plant.model.accept_pitches`); a trajectory is a pure function of time, so
+(:func:`~autopilot.tlc.controller.tlc_kernel`, :func:`~heli_plant.model.plant_step`,
+:func:`~heli_plant.model.accept_pitches`); a trajectory is a pure function of time, so
 the references for every tick are sampled up front.
 """
 
@@ -38,11 +38,11 @@ from heli_common.plant_model import PlantModel
 from heli_common.sensor_wire import N_HOME
 from heli_common.state import N_PITCH, N_STATE, FloatArray
 from heli_common.world import World
-from heli_sitl.plant.model import Plant, accept_pitches
-from heli_sitl.plant.rotor import N_ROTOR, RotorConstants
-from heli_sitl.plant.rotor import OFF as ROTOR_OFF
-from heli_sitl.plant.sensors.sensing import Sensing, sense
-from heli_sitl.plant.world.model import (
+from heli_plant.model import Plant, accept_pitches
+from heli_plant.rotor import N_ROTOR, RotorConstants
+from heli_plant.rotor import OFF as ROTOR_OFF
+from heli_plant.sensors.sensing import Sensing, sense
+from heli_plant.world.model import (
     WS_AIR,
     WS_PITCH,
     WS_ROTOR,

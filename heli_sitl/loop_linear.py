@@ -38,10 +38,10 @@ from heli_common.plant_model import PlantModel
 from heli_common.servo_model import SS_FIFO, SS_RING_INDEX
 from heli_common.state import N_PITCH, N_STATE, PITCH_NAMES, STATE_NAMES, FloatArray
 from heli_common.world import Servos, World
-from heli_sitl.plant.model import accept_pitches
-from heli_sitl.plant.rotor import N_ROTOR
-from heli_sitl.plant.trim import hover_rotor_state, jacobian, trim
-from heli_sitl.plant.world.model import WS_ROTOR, WorldModel, world_plant_step
+from heli_plant.model import accept_pitches
+from heli_plant.rotor import N_ROTOR
+from heli_plant.trim import hover_rotor_state, jacobian, trim
+from heli_plant.world.model import WS_ROTOR, WorldModel, world_plant_step
 
 HOVER_ALT_M = 20.0
 OMEGA_RAD_S = np.logspace(-2.0, math.log10(math.pi * 100.0) - 1e-3, 600)

@@ -15,9 +15,9 @@ def main() -> None:
     t0 = time.perf_counter()
     from autopilot.scenario import Scenario
     from heli_common import frames
+    from heli_plant.contact import apply_ground_contact
+    from heli_plant.model import Plant
     from heli_sitl.closed_loop import SimOptions, simulate
-    from heli_sitl.plant.contact import apply_ground_contact
-    from heli_sitl.plant.model import Plant
 
     sc = Scenario.load("paper")
     simulate(sc, SimOptions(duration_s=0.1))

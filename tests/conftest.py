@@ -20,12 +20,12 @@ from autopilot.tlc.controller import N_DIAG, TLCConstants, TLController
 from autopilot.tlc.gains import Gains
 from heli_common.airframe import Airframe, PlantConstants
 from heli_common.state import N_PITCH, N_STATE, PSI, Z_U, FloatArray
+from heli_plant.model import Plant
+from heli_plant.rotor import N_ROTOR
+from heli_plant.rotor import OFF as ROTOR_OFF
+from heli_plant.trim import PlantFunction
+from heli_plant.world.model import CalmArrays
 from heli_sitl.closed_loop import SensingArrays, _run_ticks
-from heli_sitl.plant.model import Plant
-from heli_sitl.plant.rotor import N_ROTOR
-from heli_sitl.plant.rotor import OFF as ROTOR_OFF
-from heli_sitl.plant.trim import PlantFunction
-from heli_sitl.plant.world.model import CalmArrays
 
 # The first call of a compiled function loads (or compiles) it: no per-example deadline.
 # HYPOTHESIS_PROFILE=thorough runs 20x more examples per property.

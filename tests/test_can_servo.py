@@ -52,7 +52,7 @@ from heli_common.can.dronecan_codec import (
     float16_tolerance,
     parse_can_id,
 )
-from heli_sitl.plant.can_endpoint import CanServoEndpoint
+from heli_plant.can_endpoint import CanServoEndpoint
 
 # wide test limits [rad] (the X-Cell 60 file has tighter ones): theta_m, theta_t, eps, eta
 LIMITS = PitchLimits((-0.6, 0.6), (-0.8, 0.8), (-0.5, 0.5), (-0.5, 0.5))

@@ -28,9 +28,9 @@ from autopilot.tlc.gains import Gains
 from autopilot.trajectory.analytic import StraightLine
 from heli_common.airframe import Airframe
 from heli_common.state import N_PITCH, N_STATE, OMEGA, PHI, THETA, VEL, Z_U, FloatArray
+from heli_plant.dynamics import derivative
+from heli_plant.model import Plant, accept_pitches, plant_step
 from heli_sitl.closed_loop import SimOptions, simulate
-from heli_sitl.plant.dynamics import derivative
-from heli_sitl.plant.model import Plant, accept_pitches, plant_step
 
 # --- the paper scenario --------------------------------------------------------------------------
 

@@ -1,4 +1,4 @@
-"""The plant (heli_sitl.plant.dynamics, integrate, plant): invariants of the rigid body, finite-
+"""The plant (heli_plant.dynamics, integrate, plant): invariants of the rigid body, finite-
 difference checks of the kinematics, gravity, forces, RK4 order and a hover trim."""
 
 from __future__ import annotations
@@ -16,8 +16,8 @@ from scipy.spatial.transform import Rotation
 
 from heli_common.airframe import Airframe, PlantConstants
 from heli_common.state import EULER, N_STATE, OMEGA, POS, VEL, Z_U, FloatArray
-from heli_sitl.plant.dynamics import derivative, forces_torques, rigid_body, rotor_loads
-from heli_sitl.plant.model import Plant, plant_step
+from heli_plant.dynamics import derivative, forces_torques, rigid_body, rotor_loads
+from heli_plant.model import Plant, plant_step
 
 ZERO3 = np.zeros(3)
 

@@ -16,8 +16,8 @@ from autopilot.scenario import Scenario
 from heli_common.measurements import NEW_GPS, OUT_GPS_POS
 from heli_common.sensors import Gps, Imu, Sensors
 from heli_common.world import World, with_sim_param
+from heli_plant.model import Plant
 from heli_sitl.closed_loop import SimOptions, simulate
-from heli_sitl.plant.model import Plant
 
 DURATION_S = 30.0  # the climb and the slope change's approach: enough to tell flights apart
 

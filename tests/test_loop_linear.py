@@ -89,8 +89,8 @@ def test_linearisation_pipeline_on_loop_4_alone_has_the_known_answer() -> None:
     import control as ct
 
     from autopilot.tlc.controller import Feedforward, make_constants
+    from heli_plant.trim import jacobian
     from heli_sitl.loop_linear import Discrete, balanced_disk, loop_at_a_time
-    from heli_sitl.plant.trim import jacobian
 
     k = make_constants(SC.airframe, SC.gains, 100.0, Feedforward.PSEUDO)
     dt, j, j_inv = k.dt_s, k.j, k.j_inv

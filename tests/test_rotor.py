@@ -11,7 +11,7 @@ from numpy.testing import assert_allclose
 
 from heli_common.airframe import Airframe, PlantConstants
 from heli_common.rotor import pitch_from_thrust_coeff, thrust_coeff, torque_coeff
-from heli_sitl.plant.dynamics import rotor_loads
+from heli_plant.dynamics import rotor_loads
 
 _C = Airframe.load().constants()
 ROTORS = {"main": (_C.a_m, _C.s_m), "tail": (_C.a_t, _C.s_t)}

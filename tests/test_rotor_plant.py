@@ -19,11 +19,11 @@ from heli_common.config import ConfigError
 from heli_common.plant_model import PlantModel, hover_check
 from heli_common.state import EPS, N_STATE, P_X, Q_Y, R_Z, THETA_M, U_F, W_U, Z_U
 from heli_common.world import World
+from heli_plant import rotor
+from heli_plant.dynamics import gravity_flu
+from heli_plant.trim import PlantFunction, linearize, trim
 from heli_sitl.closed_loop import SimOptions, simulate
 from heli_sitl.demo import DemoOptions, run_demo
-from heli_sitl.plant import rotor
-from heli_sitl.plant.dynamics import gravity_flu
-from heli_sitl.plant.trim import PlantFunction, linearize, trim
 
 GAV = PlantModel.load("gavrilets")
 DESIGN = Airframe.load()

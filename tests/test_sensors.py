@@ -1,4 +1,4 @@
-"""Sensor models (heli_sitl.plant.sensors) against theory, and their configuration.
+"""Sensor models (heli_plant.sensors) against theory, and their configuration.
 
 Long seeded runs of the compiled step check each white noise's mean and standard deviation
 (``N sqrt(rate)`` for a density ``N``) and its Welch spectrum (two-sided ``N^2``), the bias
@@ -44,8 +44,8 @@ from heli_common.sensors import (
 )
 from heli_common.state import EULER, N_STATE, OMEGA, PHI, POS, PSI, THETA, U_F, Z_U, FloatArray
 from heli_common.world import SIM_PARAM_NAMES, WORLD_SIM_PARAMS, World
-from heli_sitl.plant.sensors import model
-from heli_sitl.plant.sensors.model import (
+from heli_plant.sensors import model
+from heli_plant.sensors.model import (
     N_OUT,
     NEW_ATT,
     NEW_BARO,
@@ -70,7 +70,7 @@ from heli_sitl.plant.sensors.model import (
     specific_force_flu,
     velocity_nwu,
 )
-from heli_sitl.plant.world.noise import STREAM_SENSOR_BASE
+from heli_plant.world.noise import STREAM_SENSOR_BASE
 
 ROOT = Path(__file__).resolve().parent.parent
 G = 9.81  # the X-Cell airframe file's gravity
@@ -378,7 +378,7 @@ _PY_SCRIPT = """
 import json, sys
 import numpy as np
 from heli_common.sensors import preset
-from heli_sitl.plant.sensors.model import SensorModel
+from heli_plant.sensors.model import SensorModel
 g, h, xs, accs = json.load(sys.stdin)
 m = SensorModel(preset("noisy"), h, g)
 print(json.dumps([tuple(m.step(k * h, np.array(xs[k]), np.array(accs[k]))) for k in range(len(xs))]))

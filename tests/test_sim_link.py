@@ -224,7 +224,7 @@ def test_landed_with_ground_command_does_not_wind_up(paper: Scenario) -> None:
 
 def test_disarmed_on_the_ground_does_not_yaw() -> None:
     """Zero pitch still leaves the main rotor's profile torque; skid friction holds the yaw."""
-    from heli_sitl.plant.model import Plant
+    from heli_plant.model import Plant
 
     plant = Plant(Airframe.load(), np.zeros(12))
     plant.set_pitches(np.zeros(4))

@@ -34,8 +34,8 @@ from heli_common.airframe import Airframe, PlantConstants
 from heli_common.kinematics import euler_rates
 from heli_common.rotor import pitch_from_thrust_coeff
 from heli_common.state import N_STATE, Z_U, FloatArray
-from heli_sitl.plant.dynamics import rotor_loads
-from heli_sitl.plant.model import Plant
+from heli_plant.dynamics import rotor_loads
+from heli_plant.model import Plant
 
 _AF = Airframe.load()
 _C = _AF.constants()

@@ -22,14 +22,14 @@ from heli_common.airframe import Airframe
 from heli_common.plant_model import PlantModel
 from heli_common.state import EPS, ETA, N_PITCH, N_STATE, P_X, Q_Y
 from heli_common.world import World
+from heli_plant import rotor
+from heli_plant.trim import PlantFunction, trim
 from heli_sitl.campaign.flight import metrics
 from heli_sitl.campaign.spec import CampaignSpec
 from heli_sitl.closed_loop import SimOptions, simulate
 from heli_sitl.demo import DemoOptions, run_demo
 from heli_sitl.loop_linear import linearize_loop
 from heli_sitl.loop_linear import servo_model as servo_preset
-from heli_sitl.plant import rotor
-from heli_sitl.plant.trim import PlantFunction, trim
 
 GAINS = Gains.load("gains_tlc_rotor.toml")
 DESIGN = Airframe.load()

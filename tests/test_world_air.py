@@ -1,4 +1,4 @@
-"""The air on the X-Cell (heli_sitl.plant.world.air) against theory.
+"""The air on the X-Cell (heli_plant.world.air) against theory.
 
 Fuselage drag of equivalent flat plates and uniform-inflow momentum/blade-element rotor
 thrust in a relative wind (Gavrilets, Mettler & Feron 2001; Padfield, Helicopter Flight
@@ -17,8 +17,8 @@ from numpy.testing import assert_allclose
 
 from heli_common.airframe import Airframe
 from heli_common.rotor import pitch_from_thrust_coeff, thrust_coeff, torque_coeff
-from heli_sitl.plant.dynamics import rotor_loads
-from heli_sitl.plant.world.air import (
+from heli_plant.dynamics import rotor_loads
+from heli_plant.world.air import (
     fuselage_force_flu,
     hover_inflow,
     hub_velocity_flu,

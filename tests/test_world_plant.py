@@ -20,10 +20,10 @@ from heli_common.scenario_file import InitialState
 from heli_common.state import EPS, ETA, PHI, PSI, THETA, THETA_M
 from heli_common.world import AirLoads as Air
 from heli_common.world import Disturbance, Mismatch, Wind, World
+from heli_plant.dynamics import forces_from_loads, rotor_loads
+from heli_plant.model import Plant
+from heli_plant.world import air
 from heli_sitl.closed_loop import SimOptions, simulate
-from heli_sitl.plant.dynamics import forces_from_loads, rotor_loads
-from heli_sitl.plant.model import Plant
-from heli_sitl.plant.world import air
 
 PRESETS = ("calm", "breezy", "gusty", "servos-default", "sloppy-servos", "heavy-10pct", "everything")
 HOVER_M = (0.0, 0.0, 10.0)

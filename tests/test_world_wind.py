@@ -1,4 +1,4 @@
-"""Wind model (heli_sitl.plant.world): counter-based noise, mean wind, gusts, Dryden turbulence.
+"""Wind model (heli_plant.world): counter-based noise, mean wind, gusts, Dryden turbulence.
 
 Everything is checked against theory: the noise's moments, the exact discretisation's
 stationarity (Phi P Phi^T + Q_d = P, C P C^T = sigma^2), and long seeded runs of the compiled
@@ -25,9 +25,9 @@ from numpy.testing import assert_allclose
 from heli_common.gusts import gust_factor, mean_wind_nwu
 from heli_common.jit import njit
 from heli_common.state import FloatArray
-from heli_sitl.plant.world import noise
-from heli_sitl.plant.world.noise import STREAM_TURB_U, STREAM_TURB_V, normal, normal_pair
-from heli_sitl.plant.world.wind import (
+from heli_plant.world import noise
+from heli_plant.world.noise import STREAM_TURB_U, STREAM_TURB_V, normal, normal_pair
+from heli_plant.world.wind import (
     B_L11,
     B_L21,
     B_L22,
@@ -117,8 +117,8 @@ def test_normal_deterministic_and_seeds_streams_differ() -> None:
 _PY_SCRIPT = """
 import json
 import numpy as np
-from heli_sitl.plant.world.noise import normal
-from heli_sitl.plant.world import wind
+from heli_plant.world.noise import normal
+from heli_plant.world import wind
 keys = json.loads(input())
 vals = [normal(s, st, k) for s, st, k in keys]
 c = wind.dryden_coefficients(*wind.dryden_low_altitude(12.0, 6.0), 3.0, 0.02)

@@ -3,7 +3,7 @@ cascade, and the command filter that models the servos (compiled; no I/O, no clo
 
 The paper's design model tilts the thrust the instant the cyclic moves. A real rotor with a
 stabilizer bar answers through the tip-path plane's first-order flapping (Gavrilets, Mettler
-& Feron 2001; ``heli_sitl/plant/rotor.py``)::
+& Feron 2001; ``heli_plant/rotor.py``)::
 
     a1' = -q - a1/tau_e + A_lon eps / tau_e,     b1' = -p - b1/tau_e + B_lat eta / tau_e
 

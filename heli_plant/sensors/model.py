@@ -37,7 +37,7 @@ Per sensor (details and sources in docs/sensors.md):
   values stay); a frozen sensor with no output yet outputs its first sample. GPS
   ``disabled``: fixes are still taken (the noise processes run on) but none is delivered.
 
-Randomness is counter-based (:mod:`heli_sitl.plant.world.noise`): each process draws from
+Randomness is counter-based (:mod:`heli_plant.world.noise`): each process draws from
 its own stream id (>= ``STREAM_SENSOR_BASE``, never the world's) at its sensor's sample
 count, so the same seed and the same sequence of calls give the same samples in any process
 (and under ``NUMBA_DISABLE_JIT=1``). With every error term zero no arithmetic but ``+ 0.0``
@@ -118,7 +118,7 @@ from heli_common.measurements import (  # the out layout and mask bits are the c
 )
 from heli_common.sensors import Sensors, validate
 from heli_common.state import N_STATE, OMEGA, P_X, PHI, PSI, THETA, U_F, V_L, VEL, W_U, X_N, Z_U, FloatArray
-from heli_sitl.plant.world.noise import STREAM_SENSOR_BASE, normal, normal_pair
+from heli_plant.world.noise import STREAM_SENSOR_BASE, normal, normal_pair
 
 # --- stream ids (one per random process; the world owns those below 16) -----------------
 STREAM_GYRO = STREAM_SENSOR_BASE + 0

@@ -12,7 +12,7 @@ Three independent pieces, each a small pure function the plant composes:
   :func:`dryden_low_altitude` gives scale lengths and intensities from height and the wind at
   20 ft; :func:`dryden_coefficients` discretises the forming filters exactly for one step;
   :func:`dryden_init` / :func:`dryden_step` / :func:`dryden_output` run them on a 5-element
-  state with counter-based noise (:mod:`heli_sitl.plant.world.noise`), and
+  state with counter-based noise (:mod:`heli_plant.world.noise`), and
   :func:`turbulence_nwu` turns the (u, v, w) components into earth axes.
 
 Why an exact discretisation: the forming filters are linear with white-noise input, so the
@@ -54,7 +54,7 @@ import numpy as np
 
 from heli_common.jit import njit
 from heli_common.state import FloatArray
-from heli_sitl.plant.world.noise import (
+from heli_plant.world.noise import (
     STREAM_TURB_INIT,
     STREAM_TURB_U,
     STREAM_TURB_V,

@@ -6,7 +6,7 @@ flapping and rotor-speed derivatives are zero, the rotor at its governed speed.
 :func:`linearize` differentiates the same derivative numerically about a trim (central
 differences) into ``A``, ``B`` with named states and inputs, and names the modes by the
 states their eigenvectors move most. Both call the very function the plant integrates
-(:func:`heli_sitl.plant.world.model.derivative_in_air`), so the linear model is the
+(:func:`heli_plant.world.model.derivative_in_air`), so the linear model is the
 flown model's.
 """
 
@@ -40,8 +40,8 @@ from heli_common.state import (
     Z_U,
     FloatArray,
 )
-from heli_sitl.plant import rotor
-from heli_sitl.plant.world.model import (
+from heli_plant import rotor
+from heli_plant.world.model import (
     CALM_AIR,
     N_WS,
     WS_LAM_MAIN,

@@ -11,9 +11,9 @@ from heli_common.jit import njit
 from heli_common.plant_model import PlantModel
 from heli_common.state import N_PITCH, N_STATE, FloatArray
 from heli_common.world import World, with_sim_param
-from heli_sitl.plant import rotor
-from heli_sitl.plant.sensors.sensing import Sensing
-from heli_sitl.plant.world.model import (
+from heli_plant import rotor
+from heli_plant.sensors.sensing import Sensing
+from heli_plant.world.model import (
     CALM_AIR,
     DIST_NONE,
     N_WP,
@@ -86,7 +86,7 @@ class Plant:
         self.world_config = world if world is not None else World()
         self.world: WorldModel | None = None
         if self.model.rotor is not None:
-            from heli_sitl.plant.trim import hover_rotor_state
+            from heli_plant.trim import hover_rotor_state
 
             r0 = np.array(hover_rotor_state(self.model, airframe))
             self.world = WorldModel.build(self.world_config, airframe, self.x, self.model.rotor, r0)

@@ -31,11 +31,11 @@ from heli_common.mavlink.sim_protocol import (
 )
 from heli_common.mavlink.udp import MavlinkUdp, mavlink2
 from heli_common.servo_map import limits_array
-from heli_sitl.plant.model import Plant
-from heli_sitl.plant.sensors.sensing import encode_measurements
-from heli_sitl.plant.servo_inputs import MavlinkServoInput
+from heli_plant.model import Plant
+from heli_plant.sensors.sensing import encode_measurements
+from heli_plant.servo_inputs import MavlinkServoInput
 
-log = logging.getLogger("heli_sitl.plant.server")
+log = logging.getLogger("heli_plant.server")
 LOCKSTEP_SPIN_S = 0.002  # poll this long before sleeping (see MavlinkUdp.wait)
 
 

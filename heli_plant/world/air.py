@@ -231,7 +231,7 @@ def main_rotor_loads_in_air(
 
     ``(u_h, v_h, w_h)``: main-hub air-relative velocity, body FLU [m/s] (thrust axis = +z, so
     ``w_h`` is the climb component); ``tip_speed_m_s = Omega_m R_m``. With zero relative air
-    this is :func:`heli_sitl.plant.dynamics.rotor_loads`' main rotor (for ``eta_w = 1``).
+    this is :func:`heli_plant.dynamics.rotor_loads`' main rotor (for ``eta_w = 1``).
     ``v_i = lam Omega R`` is the downwash :func:`fuselage_force_flu` takes.
     """
     mu, mu_z = advance_ratios(u_h, v_h, w_h, tip_speed_m_s)
@@ -279,7 +279,7 @@ def rotor_loads_in_air(
     lam_m_guess: float,
     lam_t_guess: float,
 ) -> tuple[float, float, float, float, float, float]:
-    """(Tm, Qm, Tt, Qt, lam_m, lam_t): :func:`heli_sitl.plant.dynamics.rotor_loads` in a relative
+    """(Tm, Qm, Tt, Qt, lam_m, lam_t): :func:`heli_plant.dynamics.rotor_loads` in a relative
     wind, from the c.g. air velocity ``(u_a, v_a, w_a)`` [m/s, FLU] and body rates [rad/s].
     Hubs at ``(lm, 0, hm)`` and ``(-lt, 0, ht)``; the main downwash is ``lam_m * tip_speed_m``."""
     um, vm, wm = hub_velocity_flu(u_a, v_a, w_a, p, q, r, c.lm, 0.0, c.hm)

@@ -14,7 +14,7 @@ from heli_common.mavlink.fast import HilActuatorControls, ParamSet, SimCodec
 from heli_common.mavlink.sim_protocol import MAV_MODE_FLAG_SAFETY_ARMED, decode_command, receive
 from heli_common.mavlink.udp import MavlinkUdp
 from heli_common.state import FloatArray
-from heli_sitl.plant.can_endpoint import CanServoEndpoint
+from heli_plant.can_endpoint import CanServoEndpoint
 
 # the endpoint's counts of whole commands it refused
 REFUSAL_KEYS = ("missing_actuator", "duplicate_actuator", "wrong_command_type", "nonfinite", "out_of_limits")

@@ -20,7 +20,7 @@ logged, at most once a second per kind; the previous pitches stay held):
   frame, so every applied command has passed the transfer CRC (single-frame DroneCAN
   transfers carry none; a corrupted end flag can make one out of a first frame, and that
   can never hold four commands).
-* A non-finite value refuses the whole transfer (as ``heli_sitl.plant.model.accept_pitches``).
+* A non-finite value refuses the whole transfer (as ``heli_plant.model.accept_pitches``).
 * Limits: a value beyond a servo limit by more than one float16 step at that limit
   (~6e-4 rad at 0.6 rad) refuses the whole transfer (``out_of_limits``): the sender's
   limits differ from the plant's, or it is faulty, and a silently clipped command would
@@ -69,7 +69,7 @@ from heli_common.can.dronecan_codec import (
 from heli_common.closing import Closing
 from heli_common.ratelog import RateLimitedLog
 from heli_common.state import N_PITCH, PITCH_NAMES, FloatArray
-from heli_sitl.plant.model import accept_pitches
+from heli_plant.model import accept_pitches
 
 log = logging.getLogger(__name__)
 

@@ -2,7 +2,7 @@
 
 The loads of the nonlinear model of Gavrilets, Mettler & Feron (AIAA GNC 2001) in this
 project's frames (earth NWU, body FLU), for the rigid body of
-:func:`heli_sitl.plant.dynamics.rigid_body`. The derivation, the signs and the sources are
+:func:`heli_plant.dynamics.rigid_body`. The derivation, the signs and the sources are
 in ``docs/rotor-plant.md``; the constants come from a plant file
 (:class:`heli_common.plant_model.RotorPlant`). Four states join the rigid body's twelve,
 kept by the world step after them (layout :data:`ROTOR_STATE`):
@@ -26,7 +26,7 @@ kept by the world step after them (layout :data:`ROTOR_STATE`):
 Loads (each from its own relative air velocity, ``V_a + omega x r``):
 
 * main rotor: thrust and torque from uniform-inflow momentum theory solved each step
-  (:mod:`heli_sitl.plant.world.air`, wake factor ``eta_w``) at the current ``Omega``, ground
+  (:mod:`heli_plant.world.air`, wake factor ``eta_w``) at the current ``Omega``, ground
   effect ``1 / (1 - (R / 4 z)^2)`` (Cheeseman & Bennett), thrust along the tip-path plane's
   normal, the hub spring ``K_beta (b1, a1)`` plus the thrust's moment about the c.g., the
   engine's reaction torque ``-s Q_e`` about the shaft (``s = +1`` counter-clockwise seen from above,
@@ -49,8 +49,8 @@ from heli_common.jit import njit
 from heli_common.layout import Layout
 from heli_common.plant_model import RotorPlant
 from heli_common.state import EPS, ETA, P_X, Q_Y, R_Z, THETA_M, THETA_T, Z_U, FloatArray
-from heli_sitl.plant.dynamics import gravity_flu
-from heli_sitl.plant.world import air
+from heli_plant.dynamics import gravity_flu
+from heli_plant.world import air
 
 ROTOR_STATE = Layout("rotor state", ("a1_rad", 1), ("b1_rad", 1), ("omega_rad_s", 1), ("governor_int_rad", 1))
 A1 = ROTOR_STATE.offset("a1_rad")

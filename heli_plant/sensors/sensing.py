@@ -2,7 +2,7 @@
 
 :func:`sense` takes the plant's true state after a step, the acceleration the model gives
 there (the dynamics derivative with the pitches and air of the step just flown), samples
-every sensor (:func:`~heli_sitl.plant.sensors.model.sensor_step`) and rounds the new
+every sensor (:func:`~heli_plant.sensors.model.sensor_step`) and rounds the new
 samples to what the sim link carries (:mod:`heli_common.sensor_wire`). The plant process
 and the in-process loop call this same compiled function, so both give the autopilot's
 estimator the same numbers.
@@ -36,11 +36,11 @@ from heli_common.sensor_wire import BARO_FIELD, IMU_FIELDS, gps_to_wire, home_ar
 from heli_common.sensors import Sensors
 from heli_common.state import N_PITCH, FloatArray
 from heli_common.world import World
-from heli_sitl.plant import rotor
-from heli_sitl.plant.dynamics import derivative
-from heli_sitl.plant.rotor import RotorConstants
-from heli_sitl.plant.sensors.model import SensorModel, earth_accel_from_derivative, sensor_step
-from heli_sitl.plant.world.model import (
+from heli_plant import rotor
+from heli_plant.dynamics import derivative
+from heli_plant.rotor import RotorConstants
+from heli_plant.sensors.model import SensorModel, earth_accel_from_derivative, sensor_step
+from heli_plant.world.model import (
     N_WS,
     WS_AIR,
     WS_PITCH,

@@ -34,11 +34,11 @@ from heli_common.kinematics import rot_body_to_earth
 from heli_common.plant_model import RotorPlant
 from heli_common.state import N_PITCH, N_STATE, P_X, PHI, PSI, Q_Y, R_Z, THETA, U_F, V_L, W_U, FloatArray
 from heli_common.world import World
-from heli_sitl.plant import rotor
-from heli_sitl.plant.contact import apply_ground_contact
-from heli_sitl.plant.dynamics import forces_from_loads, rigid_body, rotor_loads
-from heli_sitl.plant.rotor import N_ROTOR, RotorConstants
-from heli_sitl.plant.world import air, wind
+from heli_plant import rotor
+from heli_plant.contact import apply_ground_contact
+from heli_plant.dynamics import forces_from_loads, rigid_body, rotor_loads
+from heli_plant.rotor import N_ROTOR, RotorConstants
+from heli_plant.world import air, wind
 
 
 class AirConstants(NamedTuple):
@@ -138,7 +138,7 @@ def derivative_in_air(
 ) -> FloatArray:  # fmt: skip
     """dx/dt with the air ``w_nwu`` held. The paper's plant (``g.on`` False): rotor loads
     with inflow (or the hover maps), fuselage drag on the air-relative velocity; the rotor
-    plant (:mod:`heli_sitl.plant.rotor`): its own loads and its rotor states after the rigid
+    plant (:mod:`heli_plant.rotor`): its own loads and its rotor states after the rigid
     body's in ``x``. Then the injected disturbance. The ideal world (nothing of the air on)
     computes no air-relative velocity: it is the paper's plant, at the paper plant's cost."""
     dr = np.empty(0)
@@ -348,7 +348,7 @@ class WorldModel:
     ) -> WorldModel:  # fmt: skip
         """The world's arrays about the plant: the paper's on ``design`` (mismatch applied),
         or the rotor plant on its own airframe (mismatch applied) starting from
-        ``rotor_state0`` (layout :data:`heli_sitl.plant.rotor.ROTOR_STATE`)."""
+        ``rotor_state0`` (layout :data:`heli_plant.rotor.ROTOR_STATE`)."""
         base = design if rotor_plant is None else rotor_plant.airframe()
         af = world.mismatch.apply(base, Path(world.source).parent if world.source else None)
         c = af.constants()
@@ -440,5 +440,5 @@ class WorldModel:
 
     @property
     def rotor_state(self) -> FloatArray:
-        """The rotor plant's states now (layout :data:`heli_sitl.plant.rotor.ROTOR_STATE`)."""
+        """The rotor plant's states now (layout :data:`heli_plant.rotor.ROTOR_STATE`)."""
         return self.ws[WS_ROTOR : WS_ROTOR + N_ROTOR].copy()
