@@ -11,12 +11,10 @@ import threading
 import time
 from pathlib import Path
 from types import FrameType
-from typing import Any
 
 import numpy as np
 
-from autopilot.control import KernelController
-from autopilot.controllers import CONTROLLER_HELP, CONTROLLERS, build_controller
+from autopilot.controllers import CONTROLLER_HELP, FlyingController, build_controller, controller_arg
 from autopilot.estimation.config import EstimatorConfig
 from autopilot.flight.commands import Arm, FlyTrajectory
 from autopilot.flight.manager import FlightConfig, FlightManager
@@ -72,7 +70,7 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--world", default=None, metavar="FILE|PRESET",
                    help="the world the plant flies (configs/world/ presets): its SIM_ parameters' "
                         "starting values; give the plant the same --world")
-    p.add_argument("--controller", choices=CONTROLLERS, default="tlc", help=CONTROLLER_HELP)
+    p.add_argument("--controller", type=controller_arg, default="tlc", metavar="NAME", help=CONTROLLER_HELP)
     p.add_argument("--pid-gains", default=None, metavar="FILE", help="PID gains (TOML) for --controller pid")
     p.add_argument("--estimator", default=None, metavar="FILE",
                    help="estimator tuning (TOML, docs/estimator.md), used when the plant sends "
@@ -108,7 +106,7 @@ def main(argv: list[str] | None = None) -> int:
     return run_main("heli-autopilot", lambda: run(args, stop))
 
 
-def apply_params(ctrl: KernelController[Any], manager: FlightManager, table: ParamTable) -> None:
+def apply_params(ctrl: FlyingController, manager: FlightManager, table: ParamTable) -> None:
     """Between two control steps: new gains (the TLC_ set or the PID_ set, whichever flies),
     pitch limits (integrals and filters kept) and failsafe timeouts."""
     if isinstance(ctrl, TLController):
@@ -120,7 +118,7 @@ def apply_params(ctrl: KernelController[Any], manager: FlightManager, table: Par
 
 
 def make_gcs(
-    args: argparse.Namespace, sc: Scenario, ctrl: KernelController[Any], manager: FlightManager,
+    args: argparse.Namespace, sc: Scenario, ctrl: FlyingController, manager: FlightManager,
     limits: np.ndarray,
     world: World | None = None,
     pid_gains: PidGains | None = None,
@@ -195,7 +193,7 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
             "scenario": sc.run.name if manager.flew_duration(sc.run.duration_s) else None,
             "mode": args.mode, "rate_hz": rate,
             "feedforward": ctrl.feedforward.value if isinstance(ctrl, TLController) else None,
-            "gains": ctrl.gains.name, "controller": ctrl.kind,
+            "gains": ctrl.gains.name, "controller": ctrl.kind if ctrl.kind != "user" else args.controller,
             "summary_end_s": args.summary_end_s,
             "loop": stats.summary(), "sim_link": link,
             "gcs_link": gcs.stats() if gcs is not None else None,

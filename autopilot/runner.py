@@ -23,7 +23,8 @@ from typing import IO, Any, Protocol
 import numpy as np
 
 from autopilot.clock import Clock, SystemClock
-from autopilot.control import D_PHI_C, D_PSI_C, D_THETA_C, N_DIAG, OK, KernelController
+from autopilot.control import D_PHI_C, D_PSI_C, D_THETA_C, N_DIAG, OK
+from autopilot.controllers import FlyingController
 from autopilot.estimation.config import EstimatorConfig
 from autopilot.estimation.kf import N_EST_LOG
 from autopilot.estimation.onboard import OnboardEstimator
@@ -247,7 +248,7 @@ class Recorder:
 class Runner:
     def __init__(
         self,
-        ctrl: KernelController[Any],
+        ctrl: FlyingController,
         flight: FlightManager,
         state_in: StateSource | None,
         servo_out: ServoOutput,
@@ -334,7 +335,9 @@ class Runner:
             self.servo_out.send_pitches(t_us, self.u, self.flight.armed)
         self.manager.post_tick(t_s, x)
         d = self.ctrl.diag
-        att_cmd = _euler(x) if ref is None else (float(d[D_PHI_C]), float(d[D_THETA_C]), float(d[D_PSI_C]))
+        att_cmd = (float(d[D_PHI_C]), float(d[D_THETA_C]), float(d[D_PSI_C]))
+        if ref is None or not all(math.isfinite(a) for a in att_cmd):  # a user's law commands none
+            att_cmd = _euler(x)
         for s in self.services:
             s.after_tick(t_s, x, ref, self.u, att_cmd)
         self.service(t_s, x)

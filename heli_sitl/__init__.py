@@ -1,12 +1,14 @@
-"""heli_sitl: the helicopter SITL. ``plant/`` is the vehicle's physics and the plant process;
-the modules here compose the layers: the ``heli-sitl`` command, the in-process closed loop,
-the launchers that start plant, autopilot and ground script as processes."""
+"""heli_sitl: the composing layer on top of the plant (``heli_plant``), the autopilot and the
+ground tools: the public Python API (:mod:`heli_sitl.api`, ``import heli_sitl as hs``), the
+``heli-sitl`` command, the in-process closed loop, campaigns, comparison, tuning and the
+launchers that start plant, autopilot and ground script as processes."""
 
 from typing import Any
 
-# The Python API (heli_sitl/api.py), imported on first use: the plant process imports
-# heli_plant and must not pay for (or depend on) the composing layer above it.
-_API = ("PID", "TLC", "ExitStatus", "Flight", "FlightMetrics", "simulate", "STATE_LABELS", "REF_LABELS")
+# The Python API (heli_sitl/api.py), imported on first use: `heli-sitl --help` and the
+# launchers need none of its imports (pandas, the compiled loop).
+_API = ("PID", "TLC", "ExitStatus", "Flight", "FlightMetrics", "Linearization", "Trim", "simulate", "trim",
+        "linearize", "STATE_LABELS", "REF_LABELS")  # fmt: skip
 
 
 def __getattr__(name: str) -> Any:

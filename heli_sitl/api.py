@@ -24,6 +24,7 @@ import dataclasses
 import enum
 import json
 import math
+import traceback
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -36,11 +37,17 @@ from autopilot.metrics import FlightRecord
 from autopilot.pid.gains import PidGains
 from autopilot.scenario import Scenario
 from autopilot.tlc.gains import Gains
+from autopilot.user_controller import BUILT_IN, load_class, normalise_spec
+from heli_common.airframe import Airframe
 from heli_common.config import ConfigError
 from heli_common.plant_model import PlantModel
+from heli_common.scenario_file import load_vehicle
 from heli_common.sensors import SEED_MAX
 from heli_common.state import PITCH_LABELS, STATE_NAMES, FloatArray
 from heli_common.world import World
+from heli_plant.trim import Linearization, Trim
+from heli_plant.trim import linearize as _linearize
+from heli_plant.trim import trim as _trim
 from heli_sitl.closed_loop import SimOptions
 from heli_sitl.closed_loop import simulate as _simulate
 
@@ -175,7 +182,7 @@ class Flight:
         return d
 
 
-def _scenario(scenario: str | Path | Scenario, controller: Controller | str | None) -> Scenario:
+def _scenario(scenario: str | Path | Scenario, controller: object) -> Scenario:
     sc = scenario if isinstance(scenario, Scenario) else Scenario.load(scenario)
     if isinstance(controller, TLC):
         sc = dataclasses.replace(sc, gains=controller.load())
@@ -196,18 +203,31 @@ def simulate(
     scenario: str | Path | Scenario = "paper",
     plant: str | Path | PlantModel = "paper",
     world: str | Path | World | None = None,
-    controller: Controller | str | None = None,
+    controller: Controller | str | type[Any] | None = None,
     estimator: str | Path | EstimatorConfig | None = None,
     duration_s: float | None = None,
     seed: int | None = None,
 ) -> Flight:
     """Fly ``scenario`` in-process on ``plant`` in ``world`` (None: the paper's ideal world)
-    with ``controller`` (a :class:`TLC` or :class:`PID`, or "tlc"/"pid" with their shipped
-    gains; None: the scenario's TLC). ``seed`` seeds the world's turbulence and sensors.
-    ``estimator`` tunes the navigation filter where the world has sensors."""
-    if isinstance(controller, str) and controller not in ("tlc", "pid"):
-        raise ConfigError(f"controller: expected 'tlc', 'pid', hs.TLC(...) or hs.PID(...), "
-                          f"got {controller!r}")  # fmt: skip
+    with ``controller``: a :class:`TLC` or :class:`PID`, "tlc"/"pid" with their shipped
+    gains, or your own class (the class, or "package.module:Class" / "path/file.py:Class";
+    contract in :mod:`autopilot.user_controller`); None: the scenario's TLC. ``seed`` seeds
+    the world's turbulence and sensors. ``estimator`` tunes the navigation filter where the
+    world has sensors. An exception raised by your controller's code returns the flight
+    FAILED with the traceback in ``error``."""
+    user: str | type[Any] | None = None
+    if isinstance(controller, str):
+        user = normalise_spec(controller)  # raises, naming the forms
+        user = None if user in BUILT_IN else user
+    elif isinstance(controller, type):
+        missing = [m for m in ("update", "reset") if not callable(getattr(controller, m, None))]
+        if missing:
+            raise ConfigError(f"controller {controller.__name__}: lacks {' and '.join(missing)}() "
+                              "(see autopilot.user_controller for the contract)")  # fmt: skip
+        user = controller
+    elif controller is not None and not isinstance(controller, (TLC, PID)):
+        raise ConfigError(f"controller: expected hs.TLC(...), hs.PID(...), 'tlc', 'pid', 'module:Class', "
+                          f"'file.py:Class' or a class, got {controller!r}")  # fmt: skip
     # checked here: a replaced seed or an odd duration would pass no config file's checks
     finite_positive = isinstance(duration_s, (int, float)) and 0.0 < duration_s < math.inf
     if duration_s is not None and not finite_positive:
@@ -226,12 +246,15 @@ def simulate(
     use_pid = isinstance(controller, PID) or controller == "pid"
     opts = SimOptions(
         duration_s=duration_s, world=w, estimator=est or EstimatorConfig(), plant=pm,
-        controller="pid" if use_pid else "tlc",
+        controller=user if user is not None else "pid" if use_pid else "tlc",
         pid_gains=controller.load() if isinstance(controller, PID) else None,
     )  # fmt: skip
     label = "PID" if use_pid else "TLC"
     gains = controller.gains if isinstance(controller, (TLC, PID)) else None
     ctl = f"{label} ({_name(gains, 'shipped gains')})" if gains is not None else label
+    if user is not None:
+        cls = user if isinstance(user, type) else load_class(user)
+        ctl = str(getattr(cls, "name", cls.__name__))
     what = dict(scenario=_name(scenario, "paper"), plant=_name(plant, "paper"), world=_name(world, "ideal"),
                 controller=ctl)  # fmt: skip
     try:
@@ -239,11 +262,63 @@ def simulate(
     except (FloatingPointError, np.linalg.LinAlgError, ZeroDivisionError, OverflowError) as exc:
         return Flight(**what, status=ExitStatus.FAILED, metrics=None, record=None,
                       error=f"{type(exc).__name__}: {exc}")  # fmt: skip
+    except Exception as exc:
+        if user is None:  # the bench's own fault: not to be dressed up as a flight's end
+            raise
+        return Flight(**what, status=ExitStatus.FAILED, metrics=None, record=None,
+                      error="".join(traceback.format_exception(exc)))  # fmt: skip
     m = FlightMetrics.of(rec)
     status = ExitStatus.LOST if m.lost else ExitStatus.COMPLETED
     return Flight(**what, status=status, metrics=m, record=rec)
 
 
+def _airframe(airframe: str | Path | Airframe | None) -> Airframe:
+    if isinstance(airframe, Airframe):
+        return airframe
+    return Airframe.load(airframe) if airframe is not None else load_vehicle("paper")[0]
+
+
+def _plant(plant: str | Path | PlantModel) -> PlantModel:
+    return plant if isinstance(plant, PlantModel) else PlantModel.load(plant)
+
+
+def trim(
+    plant: str | Path | PlantModel = "paper",
+    speed_m_s: float = 0.0,
+    airframe: str | Path | Airframe | None = None,
+) -> Trim:
+    """Steady level flight north at ``speed_m_s`` (0: hover) at 20 m, out of ground effect:
+    the attitude, the four pitches (and on the rotor plant the flapping and the governor)
+    that hold it. ``airframe``: the design parameters (default the paper scenario's X-Cell).
+
+    >>> tr = hs.trim()
+    >>> [round(float(v), 4) for v in tr.u]                # theta_m, theta_t, eps, eta [rad]
+    [0.0959, 0.1521, -0.0076, -0.0187]
+    """
+    return _trim(_plant(plant), _airframe(airframe), speed_m_s=speed_m_s)
+
+
+def linearize(
+    plant: str | Path | PlantModel = "paper",
+    speed_m_s: float = 0.0,
+    airframe: str | Path | Airframe | None = None,
+) -> Linearization:
+    """``dx' = A dx + B du`` about :func:`trim` (central differences of the very derivative
+    the plant integrates), with named states, inputs and modes; ``.to_control()`` gives a
+    python-control ``StateSpace`` with those labels.
+
+    >>> lin = hs.linearize("gavrilets")
+    >>> lin.a.shape, lin.input_names
+    ((16, 16), ('theta_m', 'theta_t', 'eps', 'eta'))
+    >>> [m.name for m in lin.modes][-2:]                 # the fastest: the rotor-body modes
+    ['rotor-body pitch (flapping a1, q)', 'rotor-body roll (flapping b1, p)']
+    """
+    pm, af = _plant(plant), _airframe(airframe)
+    return _linearize(_trim(pm, af, speed_m_s=speed_m_s), pm, af)
+
+
 STATE_LABELS = STATE_NAMES
 
-__all__ = ["PID", "REF_LABELS", "STATE_LABELS", "TLC", "ExitStatus", "Flight", "FlightMetrics", "simulate"]
+__all__ = ["PID", "REF_LABELS", "STATE_LABELS", "TLC", "ExitStatus", "Flight", "FlightMetrics",
+           "Linearization",
+           "Trim", "linearize", "simulate", "trim"]

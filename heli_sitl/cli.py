@@ -165,7 +165,7 @@ def _trim(args: argparse.Namespace) -> int:
 
 
 def _margins(args: argparse.Namespace) -> int:
-    from autopilot.controllers import build_controller
+    from autopilot.controllers import build_kernel_controller
     from autopilot.pid.gains import PidGains
     from autopilot.scenario import Scenario
     from heli_common.plant_model import PlantModel
@@ -182,8 +182,8 @@ def _margins(args: argparse.Namespace) -> int:
     rows = []
     for plant in plants:
         for servos in [design.servos] if args.design else args.servos or ["servos-default"]:
-            c = build_controller(args.controller, scenario.airframe, scenario.gains, scenario.run.rate_hz,
-                                 pid_gains=pid)  # fmt: skip
+            c = build_kernel_controller(args.controller, scenario.airframe, scenario.gains,
+                                        scenario.run.rate_hz, pid_gains=pid)  # fmt: skip
             name, sv = servo_model(servos)
             lin = linearize_loop(c, PlantModel.load(plant), scenario.airframe, sv, name)
             rows.append(lin)
@@ -363,9 +363,9 @@ def _campaign(args: argparse.Namespace) -> int:
 
 
 def add_controller_args(p: argparse.ArgumentParser) -> None:
-    from autopilot.controllers import CONTROLLER_HELP, CONTROLLERS
+    from autopilot.controllers import CONTROLLER_HELP, controller_arg
 
-    p.add_argument("--controller", choices=CONTROLLERS, default="tlc", help=CONTROLLER_HELP)
+    p.add_argument("--controller", type=controller_arg, default="tlc", metavar="NAME", help=CONTROLLER_HELP)
     p.add_argument("--pid-gains", default=None, metavar="FILE", help="PID gains (TOML) for --controller pid")
 
 
@@ -375,6 +375,8 @@ def controller_args(args: argparse.Namespace) -> tuple[str, ...]:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from autopilot.controllers import controller_arg
+
     p = argparse.ArgumentParser(prog="heli-sitl", description=__doc__)
     sub = p.add_subparsers(dest="cmd", required=True)
     s = sub.add_parser("simulate", help="closed loop in one process; writes CSV, summary, figures")
@@ -518,8 +520,9 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--via", choices=("inprocess", "processes"), default="inprocess",
                    help="processes: also fly the first --limit samples through the process stack and compare")
     c.add_argument("--limit", type=arg.count, default=3, help="samples flown through processes (--via)")
-    c.add_argument("--controller", choices=("tlc", "pid"), default=None,
-                   help="fly every sample with this controller (default: the file's, else tlc)")
+    c.add_argument("--controller", type=controller_arg, default=None, metavar="NAME",
+                   help="fly every sample with this controller: tlc, pid or package.module:Class / "
+                        "file.py:Class (default: the file's, else tlc)")
     c.add_argument("--quiet", action="store_true", help="no progress bar, no table")
     c.set_defaults(func=_campaign)
     return p

@@ -15,6 +15,7 @@ import dataclasses
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -30,6 +31,7 @@ from autopilot.tlc.controller import (
     TLController,
     tlc_kernel,
 )
+from autopilot.user_controller import BUILT_IN, UserController, is_user_spec
 from heli_common.airframe import PlantConstants
 from heli_common.jit import njit
 from heli_common.mavlink.sim_protocol import as_received
@@ -66,9 +68,52 @@ class SimOptions:
     duration_s: float | None = None
     world: World | None = None  # None: the paper's ideal world
     estimator: EstimatorConfig = EstimatorConfig()  # used when the world's sensors are on
-    controller: str = "tlc"  # or "pid": the cascaded PID baseline
+    # "tlc", "pid" (the cascaded PID baseline), or a user's class: "module:Class",
+    # "file.py:Class" or the class itself (autopilot.user_controller), flown tick by tick
+    # from Python around the same compiled plant and sensing steps
+    controller: str | type[Any] = "tlc"
     pid_gains: PidGains | None = None  # None: configs/gains_pid.toml
     plant: PlantModel = PlantModel("paper")  # or Gavrilets' rotor plant (--plant)
+
+
+@njit
+def _observe(
+    i: int, t: FloatArray, x: FloatArray, held: FloatArray, c: PlantConstants, in_world: bool,
+    air: AirConstants, wp: FloatArray, ws: FloatArray, snp: FloatArray, sns: FloatArray,
+    meas: FloatArray, home: FloatArray, eparams: FloatArray, est: FloatArray, use_baro: bool,
+    x_hats: FloatArray, est_log: FloatArray, loop_s: FloatArray, g: RotorConstants,
+) -> FloatArray:  # fmt: skip
+    """Tick ``i``'s state for the controller, flying from sensors: the estimate from what
+    the sensors measured at t[i] (logged in ``x_hats[i]`` and ``est_log[i]``)."""
+    resting = i == 0 or loop_s[LS_ON_GROUND] != 0.0
+    mask = sense(t[i], x, held, c, resting, in_world, air, wp, ws, snp, sns, meas, home, g)
+    gps = est_tick(eparams, est, t[i], meas, mask, use_baro, x_hats[i])
+    log_tick(est, gps, est_log[i])
+    x_hat: FloatArray = x_hats[i]
+    return x_hat
+
+
+@njit
+def _advance(
+    i: int, t: FloatArray, x: FloatArray, out: FloatArray, lo: FloatArray, hi: FloatArray,
+    held: FloatArray, c: PlantConstants, n_sub: int, dt: float, in_world: bool, air: AirConstants,
+    wp: FloatArray, ws: FloatArray, servo_p: FloatArray, servo_s: FloatArray, dryden: FloatArray,
+    airs: FloatArray, applied: FloatArray, loop_s: FloatArray, g: RotorConstants, rotors: FloatArray,
+) -> FloatArray:  # fmt: skip
+    """The command ``out`` held while the plant integrates from t[i] to t[i+1]; the world's
+    truth of that hold logged in row i+1. Returns the next state."""
+    accept_pitches(out, lo, hi, held)
+    x, on_ground = world_plant_step(t[i], x, held, c, air, dt, n_sub, True, wp, ws, servo_p, servo_s,
+                                    dryden, g)  # fmt: skip
+    if in_world:
+        # the truth of the hold that led to the next state, as the plant reports it
+        airs[i + 1] = ws[WS_AIR : WS_AIR + 3]
+        applied[i + 1] = ws[WS_PITCH : WS_PITCH + N_PITCH]
+    if g.on:
+        rotors[i + 1, :N_ROTOR] = ws[WS_ROTOR : WS_ROTOR + N_ROTOR]
+        rotors[i + 1, N_ROTOR] = ws[WS_THROTTLE]
+    loop_s[LS_ON_GROUND] = 1.0 if on_ground else 0.0
+    return x
 
 
 @njit
@@ -118,18 +163,11 @@ def _run_ticks(
     x = x0.copy()
     out = np.empty(N_PITCH)
     diag = np.zeros(N_DIAG)
-    x_hat = np.empty(x0.shape[0])
-    dt = k.dt_s
     for i in range(k0, k1):
         xc = x
         if sensing:
-            # the controller flies on the estimate from what the sensors measured at t[i]
-            resting = i == 0 or loop_s[LS_ON_GROUND] != 0.0
-            mask = sense(t[i], x, held, c, resting, in_world, air, wp, ws, snp, sns, meas, home, g)
-            gps = est_tick(eparams, est, t[i], meas, mask, use_baro, x_hat)
-            x_hats[i] = x_hat
-            log_tick(est, gps, est_log[i])
-            xc = x_hat
+            xc = _observe(i, t, x, held, c, in_world, air, wp, ws, snp, sns, meas, home, eparams, est,
+                          use_baro, x_hats, est_log, loop_s, g)  # fmt: skip
         if use_pid:
             pid_kernel(kp, pid_state, xc, refs[i], False, out, diag)
         else:
@@ -138,17 +176,8 @@ def _run_ticks(
         us[i] = out
         diags[i] = diag
         if i < n_last:
-            accept_pitches(out, lo, hi, held)
-            x, on_ground = world_plant_step(t[i], x, held, c, air, dt, n_sub, True, wp, ws, servo_p, servo_s,
-                                            dryden, g)  # fmt: skip
-            if in_world:
-                # the truth of the hold that led to the next state, as the plant reports it
-                airs[i + 1] = ws[WS_AIR : WS_AIR + 3]
-                applied[i + 1] = ws[WS_PITCH : WS_PITCH + N_PITCH]
-            if g.on:
-                rotors[i + 1, :N_ROTOR] = ws[WS_ROTOR : WS_ROTOR + N_ROTOR]
-                rotors[i + 1, N_ROTOR] = ws[WS_THROTTLE]
-            loop_s[LS_ON_GROUND] = 1.0 if on_ground else 0.0
+            x = _advance(i, t, x, out, lo, hi, held, c, n_sub, k.dt_s, in_world, air, wp, ws, servo_p,
+                         servo_s, dryden, airs, applied, loop_s, g, rotors)  # fmt: skip
     return x
 
 
@@ -159,9 +188,13 @@ def simulate(
     rate_hz = opts.rate_hz or run.rate_hz
     duration = opts.duration_s or run.duration_s
     ctrl = TLController(scenario.airframe, scenario.gains, rate_hz, opts.feedforward or run.feedforward)
-    if opts.controller not in ("tlc", "pid"):
-        raise ValueError(f"controller must be tlc or pid, got {opts.controller!r}")
-    use_pid = opts.controller == "pid"
+    kind = opts.controller
+    user = None
+    if not isinstance(kind, str) or is_user_spec(kind):
+        user = UserController(kind, scenario.airframe, rate_hz, strict=True)
+    elif kind not in BUILT_IN:
+        raise ValueError(f"controller must be tlc, pid or module:Class, got {kind!r}")
+    use_pid = kind == "pid"
     pid = PIDController(scenario.airframe, opts.pid_gains or default_pid_gains(), rate_hz)
     plant = Plant(
         scenario.airframe,
@@ -190,7 +223,7 @@ def simulate(
     if plant.world is not None:
         # the servos start where the first command puts them, as in the plant process; that
         # command answers the state the controller sees first (the estimate, from sensors)
-        flying = pid if use_pid else ctrl
+        flying: TLController | PIDController | UserController = user or (pid if use_pid else ctrl)
         first = copy.deepcopy(flying).update(0.0, sn.first_estimate(plant) if sn.on else x, refs[0])
         u0 = plant.u.copy()
         accept_pitches(first, plant.lo, plant.hi, u0)
@@ -207,21 +240,52 @@ def simulate(
             sn.use_baro, sn.x_hats, sn.log, loop_s, use_pid, pid.constants, pid_state, g, rotors,
         )  # fmt: skip
 
+    def user_ticks(u: UserController, k0: int, k1: int, held: FloatArray, ws: FloatArray, servo_s: FloatArray,
+                   x: FloatArray, sns: FloatArray, meas: FloatArray, est: FloatArray,
+                   loop_s: FloatArray) -> FloatArray:  # fmt: skip
+        """The compiled loop's ticks with the controller called from Python: the very same
+        sensing and plant steps around it (a wrapped TLC flies bit for bit as compiled)."""
+        in_world = plant.world is not None
+        for i in range(k0, k1):
+            xc = x
+            if sn.on:
+                xc = _observe(i, t, x, held, plant.constants, in_world, w.air, w.wp, ws, sn.snp, sns,
+                              meas, sn.home, sn.eparams, est, sn.use_baro, sn.x_hats, sn.log, loop_s,
+                              g)  # fmt: skip
+            out = u.update(float(t[i]), xc, refs[i])
+            xs[i] = x
+            us[i] = out
+            diags[i] = u.diag
+            if i < n:
+                x = _advance(i, t, x, out, plant.lo, plant.hi, held, plant.constants, plant.substeps,
+                             ctrl.constants.dt_s, in_world, w.air, w.wp, ws, w.servo_p, servo_s, w.dryden,
+                             airs, applied, loop_s, g, rotors)  # fmt: skip
+        return x
+
     loop_s = np.zeros(1)
     # load (or compile) the kernels outside the timed flight, on throwaway copies
-    ticks(0, 1, ctrl.state.copy(), plant.u.copy(), w.ws.copy(), w.servo_s.copy(), x, sn.sns.copy(),
-          sn.meas.copy(), sn.est.copy(), loop_s.copy(), pid.state.copy())  # fmt: skip
+    warm = (plant.u.copy(), w.ws.copy(), w.servo_s.copy(), x, sn.sns.copy(), sn.meas.copy(), sn.est.copy(),
+            loop_s.copy())  # fmt: skip
+    if user is None:
+        ticks(0, 1, ctrl.state.copy(), *warm, pid.state.copy())
+    else:
+        user_ticks(copy.deepcopy(user), 0, 1, *warm)
     wall0 = time.perf_counter()
     for k0 in range(0, n + 1, CHUNK_TICKS):
         k1 = min(n + 1, k0 + CHUNK_TICKS)
-        x = ticks(k0, k1, ctrl.state, plant.u, w.ws, w.servo_s, x, sn.sns, sn.meas, sn.est, loop_s, pid.state)
+        if user is None:
+            x = ticks(k0, k1, ctrl.state, plant.u, w.ws, w.servo_s, x, sn.sns, sn.meas, sn.est, loop_s,
+                      pid.state)  # fmt: skip
+        else:
+            x = user_ticks(user, k0, k1, plant.u, w.ws, w.servo_s, x, sn.sns, sn.meas, sn.est, loop_s)
         if progress is not None:
             progress(k1 - 1, n)
     wall = time.perf_counter() - wall0
     extra: dict[str, object] = {
         "scenario": run.name, "rate_hz": rate_hz, "feedforward": ctrl.feedforward.value,
-        "plant_substeps": plant.substeps, "gains": pid.gains.name if use_pid else scenario.gains.name,
-        "controller": opts.controller,
+        "plant_substeps": plant.substeps,
+        "gains": user.name if user else pid.gains.name if use_pid else scenario.gains.name,
+        "controller": user.spec if user else kind,
     }  # fmt: skip
     extra["plant"] = plant.model.kind
     if plant.world is not None or sn.on:

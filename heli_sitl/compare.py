@@ -43,6 +43,7 @@ from autopilot.estimation.config import EstimatorConfig
 from autopilot.metrics import FlightRecord
 from autopilot.pid.gains import PidGains
 from autopilot.scenario import Scenario
+from autopilot.user_controller import is_user_spec, normalise_spec
 from heli_common.config import CONFIG_DIR, ConfigError, read_toml, resolve
 from heli_common.plant_model import PlantModel
 from heli_common.world import World
@@ -181,7 +182,8 @@ def _reference(src: str, t: dict[str, Any], labels: list[str]) -> tuple[str, tup
 
 def load_compare(path: str | Path = "compare.toml") -> CompareSpec:
     """A comparison file (as given, or in configs/), checked: unknown keys, a controller
-    that is not tlc or pid, a gains file, world, scenario or campaign that does not load."""
+    that is not tlc, pid or a loadable ``module:Class``, a gains file, world, scenario or
+    campaign that does not load."""
     p, t = read_toml(path)
     src = str(p)
     for k in t:
@@ -197,10 +199,10 @@ def load_compare(path: str | Path = "compare.toml") -> CompareSpec:
         where = f"{src}: contender[{i}]"
         per = _on_plant(where, c.pop("plant")) if "plant" in c else ()
         con = Contender(**c, on_plant=per)
-        if con.controller not in ("tlc", "pid"):
-            raise ConfigError(
-                f'{src}: contender[{i}].controller: expected "tlc" or "pid", got {con.controller!r}'
-            )
+        try:  # tlc, pid or a user's class (loaded here, once, to fail before any flight)
+            con = dataclasses.replace(con, controller=normalise_spec(con.controller))
+        except ConfigError as exc:
+            raise ConfigError(f"{src}: contender[{i}].controller: {exc}") from exc
         if con.feedforward not in ("", "pseudo", "exact"):
             raise ConfigError(
                 f'{src}: contender[{i}].feedforward: expected "pseudo" or "exact", got {con.feedforward!r}'
@@ -252,6 +254,13 @@ def scenario_for(name: str, c: Contender, max_speed_m_s: float = 0.0) -> Scenari
     return sc
 
 
+def gains_flown(c: Contender) -> str:
+    """What a report names as a contender's gains: a file, or the user's own class."""
+    if is_user_spec(c.controller):
+        return c.controller.rpartition(":")[2] + " (its own)"
+    return c.pid_gains or c.gains or "the scenario's"
+
+
 def pid_gains_for(c: Contender, max_speed_m_s: float = 0.0) -> PidGains | None:
     if c.controller != "pid":
         return None
@@ -301,7 +310,10 @@ def fly(f: Flight) -> FlightScore:
     """One flight's score; a flight that raises is lost (its error kept out of the numbers)."""
     try:
         sc, rec = fly_record(f)
-    except (ValueError, FloatingPointError, np.linalg.LinAlgError):
+    except Exception as exc:
+        numeric = isinstance(exc, (ValueError, FloatingPointError, np.linalg.LinAlgError))
+        if not numeric and not is_user_spec(f.contender.controller):  # the bench's own fault
+            raise
         nan = math.nan
         return FlightScore(nan, nan, nan, nan, nan, nan, nan, nan, 1.0)
     return score(rec, sc)
@@ -326,7 +338,8 @@ def campaign_spec(
     )
     if samples is not None and spec.sampler != "grid":
         spec = dataclasses.replace(spec, samples=samples)
-    if max_speed_m_s > 0.0:  # the same command limit for every contender: one fixed setting
+    if max_speed_m_s > 0.0 and not is_user_spec(c.controller):  # one command limit for all (a
+        # user's class keeps its own: it has no setting of ours to fix)
         key = "pid.position.max_speed_m_s" if c.controller == "pid" else "gains.limits.max_speed_m_s"
         fixed = Vary(key, "grid" if spec.sampler == "grid" else "choice", values=(max_speed_m_s,))
         spec = dataclasses.replace(spec, vary=(*spec.vary, fixed))
@@ -716,8 +729,7 @@ def run_compare(
             part = [
                 f"## The {plant} plant",
                 "",
-                "Gains flown here: " + "; ".join(f"{c.label} `{c.pid_gains or c.gains or 'the scenario'}`"
-                                                 for c in contenders) + ".",
+                "Gains flown here: " + "; ".join(f"{c.label} `{gains_flown(c)}`" for c in contenders) + ".",
                 "",
                 "### Each trajectory, one flight (calm air unless named: deterministic)",
                 "",

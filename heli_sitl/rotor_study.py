@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from autopilot.analysis.margins import DEFAULT_SERVOS, IDEAL_SERVOS, RotorFlapping, loop_margins
-from autopilot.controllers import build_controller
+from autopilot.controllers import build_kernel_controller
 from autopilot.pid.gains import PidGains
 from autopilot.scenario import Scenario
 from heli_common.plant_model import PlantModel
@@ -62,7 +62,8 @@ def _flight(label: str, ctrl: str, gains: str, pid: str, world: str, plant: str)
 
 def _loop(label: str, ctrl: str, gains: str, pid: str, servos: str, plant: str) -> dict[str, Any]:
     sc = Scenario.load("paper", gains=gains)
-    c = build_controller(ctrl, sc.airframe, sc.gains, 100.0, pid_gains=PidGains.load(pid) if pid else None)
+    pid_gains = PidGains.load(pid) if pid else None
+    c = build_kernel_controller(ctrl, sc.airframe, sc.gains, 100.0, pid_gains=pid_gains)
     name, sv = servo_model(servos)
     lin = linearize_loop(c, PlantModel.load(plant), sc.airframe, sv, name)
     inputs = [b for b in lin.break_points if b.name.startswith("input")]

@@ -51,7 +51,7 @@ from typing import Any
 import numpy as np
 from scipy.optimize import differential_evolution, minimize
 
-from autopilot.controllers import build_controller
+from autopilot.controllers import build_kernel_controller
 from autopilot.design_point import MIN_DISK_MARGIN
 from autopilot.flight_metrics import FlightMetrics
 from autopilot.pid.gains import PidGains, default_pid_gains
@@ -231,7 +231,7 @@ class MarginConstraint:
         """How far the candidate's worst disk margin is below the bound (0: it holds)."""
         pid = gains if controller == "pid" else None
         tlc = scenario.gains if controller == "pid" else gains
-        c = build_controller(controller, scenario.airframe, tlc, scenario.run.rate_hz, pid_gains=pid)
+        c = build_kernel_controller(controller, scenario.airframe, tlc, scenario.run.rate_hz, pid_gains=pid)
         name, sv = servo_model(self.servos)
         try:
             lin = linearize_loop(c, PlantModel.load(self.plant), scenario.airframe, sv, name)

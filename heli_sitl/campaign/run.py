@@ -21,6 +21,7 @@ import numpy as np
 from autopilot.estimation.config import EstimatorConfig
 from autopilot.pid.gains import PidGains
 from autopilot.scenario import Scenario
+from autopilot.user_controller import is_user_spec, normalise_spec
 from heli_common.config import ConfigError
 from heli_common.plant_model import PlantModel
 from heli_common.world import World
@@ -59,7 +60,7 @@ def prepare(
     ``controller`` overrides the file's."""
     spec = path if isinstance(path, CampaignSpec) else load_campaign(path)
     if controller is not None:
-        spec = dataclasses.replace(spec, controller=controller)
+        spec = dataclasses.replace(spec, controller=normalise_spec(controller))
     if samples is not None:
         if samples < 1:
             raise ConfigError(f"--samples: expected >= 1, got {samples}")
@@ -68,14 +69,15 @@ def prepare(
     canon = tuple(canonical(v.key) for v in spec.vary)
     if len(set(canon)) != len(canon):
         raise ConfigError(f"{spec.source}: vary: two keys name the same setting ({', '.join(spec.keys)})")
-    # the other controller's gains would change nothing: flights that differ in name only
-    other, owner = {"tlc": ("pid.", "pid"), "pid": ("gains.", "tlc")}[spec.controller]
-    for v in spec.vary:
-        if canonical(v.key).startswith(other):
-            raise ConfigError(
-                f"{v.key}: varies the {owner.upper()}'s gains, but the campaign flies the "
-                f'{spec.controller.upper()} (set controller = "{owner}", or --controller {owner})'
-            )
+    # another controller's gains would change nothing: flights that differ in name only
+    for prefix, owner in (("pid.", "pid"), ("gains.", "tlc")):
+        flown = "your controller" if is_user_spec(spec.controller) else spec.controller.upper()
+        for v in spec.vary:
+            if owner != spec.controller and canonical(v.key).startswith(prefix):
+                raise ConfigError(
+                    f"{v.key}: varies the {owner.upper()}'s gains, but the campaign flies {flown} "
+                    f'(set controller = "{owner}", or --controller {owner})'
+                )
     for v in spec.vary:
         check(base, v.key, _probes(v))
     spec = dataclasses.replace(

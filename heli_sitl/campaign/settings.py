@@ -65,7 +65,7 @@ class Flight:
     scenario: Scenario
     world: World
     estimator: EstimatorConfig
-    controller: str = "tlc"  # or "pid"
+    controller: str = "tlc"  # "pid", or a user's "module:Class" (autopilot.user_controller)
     pid_gains: PidGains | None = None  # None: configs/gains_pid.toml
     plant: PlantModel = PlantModel("paper")
 

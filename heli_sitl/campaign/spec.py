@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from autopilot.user_controller import normalise_spec
 from heli_common.config import ConfigError, read_toml
 
 SAMPLERS = ("random", "lhs", "sobol", "grid", "saltelli")
@@ -87,7 +88,7 @@ class CampaignSpec:
     name: str
     scenario: str = "paper"
     gains: str = ""  # the TLC's gains ("": the scenario's)
-    controller: str = "tlc"  # or "pid": the cascaded PID baseline
+    controller: str = "tlc"  # "pid": the cascaded PID baseline; "module:Class": a user's class
     pid_gains: str = ""  # "": configs/gains_pid.toml
     feedforward: str = ""  # the TLC's: "pseudo" or "exact" ("": the scenario's)
     plant: str = "paper"  # paper, gavrilets or a plant file (docs/rotor-plant.md)
@@ -198,8 +199,10 @@ def parse(table: dict[str, Any], source: str) -> CampaignSpec:
         if not isinstance(v, str):
             raise _fail(f"{source}: {k}", f"expected a string, got {v!r}")
         strings[k] = v
-    if strings["controller"] not in ("tlc", "pid"):
-        raise _fail(f"{source}: controller", f'expected "tlc" or "pid", got {strings["controller"]!r}')
+    try:
+        strings["controller"] = normalise_spec(strings["controller"])
+    except ConfigError as exc:
+        raise _fail(f"{source}: controller", str(exc)) from exc
     if strings["feedforward"] not in ("", "pseudo", "exact"):
         raise _fail(f"{source}: feedforward", f'expected "pseudo" or "exact", got {strings["feedforward"]!r}')
     samples = table.get("samples", 100)
