@@ -17,14 +17,27 @@ from typing import Any, ClassVar, Generic, TypeVar
 
 import numpy as np
 
-from autopilot.reference import N_REF
+from autopilot.reference import N_REF, REF_POS
 from heli_common.airframe import Airframe, PitchLimits
 from heli_common.jit import njit
-from heli_common.state import N_PITCH, N_STATE, FloatArray
+from heli_common.layout import Layout
+from heli_common.state import N_PITCH, N_STATE, POS, FloatArray
 
 # diagnostics written each tick, the same for every controller
-D_PHI_C, D_THETA_C, D_PSI_C, D_TM, D_SAT_MASK, D_TILT_LIMITED, D_STATUS = range(7)
-N_DIAG = 7
+DIAG = Layout(
+    "controller diagnostics",
+    ("phi_c", 1), ("theta_c", 1), ("psi_c", 1),  # the attitude commanded [rad]
+    ("tm", 1),  # main-rotor thrust commanded [N]
+    ("sat_mask", 1), ("tilt_limited", 1), ("status", 1),
+)  # fmt: skip
+D_PHI_C = DIAG.offset("phi_c")
+D_THETA_C = DIAG.offset("theta_c")
+D_PSI_C = DIAG.offset("psi_c")
+D_TM = DIAG.offset("tm")
+D_SAT_MASK = DIAG.offset("sat_mask")
+D_TILT_LIMITED = DIAG.offset("tilt_limited")
+D_STATUS = DIAG.offset("status")
+N_DIAG = DIAG.size
 
 # status codes
 OK, BAD_INPUT, BAD_OUTPUT = 0, 1, 2
@@ -134,7 +147,7 @@ class KernelController(ABC, Generic[G]):
         code on a function's first call, tens of milliseconds that a real-time loop's first
         tick must not pay. Nothing of this controller changes."""
         ref = np.zeros(N_REF)
-        ref[0:3] = x[0:3]
+        ref[REF_POS] = x[POS]
         self.kernel()(self.constants, self.state.copy(), x, ref, False, self._out.copy(), self.diag.copy())
 
     @property

@@ -101,6 +101,25 @@ class FlightMetrics:
             lost_reason=reason,
         )
 
+    @classmethod
+    def from_summary(cls, summary: Mapping[str, object]) -> FlightMetrics:
+        """From a summary.json (a process run's): its error windows, tilt and saturation;
+        what only the arrays tell (servo rate, travel, convergence) is NaN, not converged."""
+        rms, mx = summary["rms_pos_err_m"], summary["max_pos_err_m"]
+        if not isinstance(rms, Mapping) or not isinstance(mx, Mapping):
+            raise ValueError("summary: rms_pos_err_m and max_pos_err_m must be tables of windows")
+        sat = summary.get("saturated_ticks", 0)
+        ticks = summary.get("ticks", 0)
+        n_sat = int(sat) if isinstance(sat, (int, float)) else 0
+        n = int(ticks) if isinstance(ticks, (int, float)) else 0
+        return cls(
+            rms_m={str(k): float(v) for k, v in rms.items()},
+            max_err_m={str(k): float(v) for k, v in mx.items()},
+            max_tilt_rad=math.nan, saturated_ticks=n_sat, saturated_fraction=n_sat / n if n else math.nan,
+            max_servo_rate_rad_s=math.nan, pitch_travel_rad=math.nan, converge_s=math.nan,
+            converged=False, lost_reason="",
+        )  # fmt: skip
+
     def row(self) -> dict[str, float | int | bool | str]:
         """The campaign's columns (configs/campaigns: ``metrics``), by their names there."""
         return {

@@ -13,14 +13,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from heli_common.layout import Layout
 from heli_common.state import FloatArray
 
-N_REF = 9
-POS_0, VEL_0, ACC_0 = 0, 3, 6  # first index of each part (the compiled kernels use these)
-REF_POS = slice(POS_0, POS_0 + 3)  # [m]
-REF_VEL = slice(VEL_0, VEL_0 + 3)  # [m/s]
-REF_ACC = slice(ACC_0, ACC_0 + 3)  # [m/s^2]
-REF_DERIVATIVES = slice(VEL_0, ACC_0 + 3)
+REFERENCE = Layout("reference", ("pos_m", 3), ("vel_m_s", 3), ("acc_m_s2", 3))
+N_REF = REFERENCE.size
+# first index of each part (the compiled kernels use these)
+POS_0 = REFERENCE.offset("pos_m")
+VEL_0 = REFERENCE.offset("vel_m_s")
+ACC_0 = REFERENCE.offset("acc_m_s2")
+REF_POS = slice(POS_0, POS_0 + REFERENCE.size_of("pos_m"))  # [m]
+REF_VEL = slice(VEL_0, VEL_0 + REFERENCE.size_of("vel_m_s"))  # [m/s]
+REF_ACC = slice(ACC_0, ACC_0 + REFERENCE.size_of("acc_m_s2"))  # [m/s^2]
+REF_DERIVATIVES = slice(VEL_0, REF_ACC.stop)
 
 
 @dataclass(frozen=True)

@@ -45,7 +45,7 @@ from typing import Any, ClassVar, Protocol, runtime_checkable
 import numpy as np
 
 from autopilot.control import BAD_INPUT, BAD_OUTPUT, D_SAT_MASK, D_STATUS, N_DIAG, OK
-from autopilot.reference import N_REF
+from autopilot.reference import N_REF, REF_POS
 from heli_common.airframe import Airframe, PitchLimits
 from heli_common.config import ConfigError
 from heli_common.state import N_PITCH, N_STATE, FloatArray
@@ -204,7 +204,7 @@ class UserController:
         the last valid command where the input or the output is not usable."""
         if x.shape != (N_STATE,) or ref.shape != (N_REF,):
             raise ValueError(f"state must be ({N_STATE},) and reference ({N_REF},)")
-        if not (np.all(np.isfinite(x)) and np.all(np.isfinite(ref[0:3]))):
+        if not (np.all(np.isfinite(x)) and np.all(np.isfinite(ref[REF_POS]))):
             return self._refuse(BAD_INPUT)
         try:
             raw = self.impl.update(float(t), x.copy(), ref.copy())

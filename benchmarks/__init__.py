@@ -26,6 +26,7 @@ MODULES = (
     "benchmarks.bench_can",
     "benchmarks.bench_processes",
     "benchmarks.bench_campaign",
+    "benchmarks.bench_user_controller",
 )
 
 

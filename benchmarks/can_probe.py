@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from autopilot.flight_metrics import FlightMetrics
 from autopilot.links.can_servo import CanServoSender
 from autopilot.links.mavlink_sim import SimLink
 from heli_common.airframe import Airframe
@@ -87,7 +88,7 @@ def main() -> int:
             s = lockstep(link)
             walls[link].append(float(s["wall_s"]))  # type: ignore[arg-type]
             if link == "can":
-                out["can_rms_45_120_m"] = float(s["rms_pos_err_m"]["45-120"])  # type: ignore[index]
+                out["can_rms_45_120_m"] = FlightMetrics.from_summary(s).rms_45_m
     out["mavlink_lockstep_rtf"] = 120.0 / min(walls["mavlink"])
     out["can_lockstep_rtf"] = 120.0 / min(walls["can"])
     json.dump(out, sys.stdout)

@@ -262,6 +262,8 @@ def _log(args: argparse.Namespace) -> int:
         end = None if args.duration_s is None else time.monotonic() + args.duration_s
         try:
             gc.connect(args.connect_timeout_s)
+            until = "Ctrl-C to stop" if end is None else f"for {args.duration_s:g} s"
+            print(f"recording every message from the vehicle into {args.out} ({until})", flush=True)
             while end is None or time.monotonic() < end:
                 gc.spin(1.0 if end is None else max(0.0, min(1.0, end - time.monotonic())))
         except KeyboardInterrupt:

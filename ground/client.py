@@ -512,7 +512,10 @@ class GroundClient(Closing):
                     if not m.base_mode & m2.MAV_MODE_FLAG_SAFETY_ARMED:
                         prog.finished, prog.reason = True, "disarmed"
                     elif not in_mission and (seen_mission_mode or prog.elapsed_s > 2.5):
-                        prog.finished, prog.reason = True, f"mode {main}/{sub} (mission over)"
+                        now = wm.BY_CUSTOM.get(wm.custom_mode(main, sub))
+                        prog.finished = True
+                        left_for = now.name if now else "another mode"
+                        prog.reason = f"the vehicle left MISSION mode for {left_for}: the mission is over"
             if on_update is not None:
                 on_update(prog)
         return prog

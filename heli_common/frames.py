@@ -16,6 +16,7 @@ import numpy as np
 
 from heli_common.jit import njit
 from heli_common.kinematics import rot_body_to_earth, wrap_pi
+from heli_common.layout import Layout
 from heli_common.state import EULER, N_STATE, OMEGA, POS, VEL, FloatArray
 
 Vec3 = tuple[float, float, float]
@@ -95,9 +96,21 @@ def state_ned_to_nwu(
 
 
 # -- compiled whole-state conversions for the links' hot path ---------------------------
-# NED_FIELDS layout: roll, pitch, yaw, p, q, r (FRD), qw, qx, qy, qz, north, east, down,
-# v_north, v_east, v_down (earth-frame velocity, as LOCAL_POSITION_NED carries it)
-N_NED_FIELDS = 16
+# the fields of ATTITUDE, HIL_STATE_QUATERNION and LOCAL_POSITION_NED in one flat array
+NED_FIELDS = Layout(
+    "NED fields",
+    ("euler_frd", 3),  # roll, pitch, yaw [rad]
+    ("rates_frd", 3),  # p, q, r [rad/s]
+    ("quat", 4),  # qw, qx, qy, qz
+    ("pos_ned", 3),  # north, east, down [m]
+    ("vel_ned", 3),  # earth-frame velocity, as LOCAL_POSITION_NED carries it [m/s]
+)
+NF_EULER = NED_FIELDS.offset("euler_frd")
+NF_RATES = NED_FIELDS.offset("rates_frd")
+NF_QUAT = NED_FIELDS.offset("quat")
+NF_POS = NED_FIELDS.offset("pos_ned")
+NF_VEL = NED_FIELDS.offset("vel_ned")
+N_NED_FIELDS = NED_FIELDS.size
 
 
 @njit
@@ -107,18 +120,19 @@ def state_to_ned_fields(x: FloatArray) -> FloatArray:
     out = np.empty(N_NED_FIELDS)
     phi, theta, psi = x[EULER.start], x[EULER.start + 1], x[EULER.start + 2]
     roll, pitch, yaw = phi, -theta, wrap_pi(-psi)
-    out[0], out[1], out[2] = roll, pitch, yaw
-    out[3], out[4], out[5] = x[OMEGA.start], -x[OMEGA.start + 1], -x[OMEGA.start + 2]
+    out[NF_EULER], out[NF_EULER + 1], out[NF_EULER + 2] = roll, pitch, yaw
+    w = OMEGA.start
+    out[NF_RATES], out[NF_RATES + 1], out[NF_RATES + 2] = x[w], -x[w + 1], -x[w + 2]
     cr, sr = math.cos(roll / 2), math.sin(roll / 2)
     cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
     cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
-    out[6] = cr * cp * cy + sr * sp * sy
-    out[7] = sr * cp * cy - cr * sp * sy
-    out[8] = cr * sp * cy + sr * cp * sy
-    out[9] = cr * cp * sy - sr * sp * cy
-    out[10], out[11], out[12] = x[POS.start], -x[POS.start + 1], -x[POS.start + 2]
+    out[NF_QUAT] = cr * cp * cy + sr * sp * sy
+    out[NF_QUAT + 1] = sr * cp * cy - cr * sp * sy
+    out[NF_QUAT + 2] = cr * sp * cy + sr * cp * sy
+    out[NF_QUAT + 3] = cr * cp * sy - sr * sp * cy
+    out[NF_POS], out[NF_POS + 1], out[NF_POS + 2] = x[POS.start], -x[POS.start + 1], -x[POS.start + 2]
     v = rot_body_to_earth(phi, theta, psi) @ x[VEL]
-    out[13], out[14], out[15] = v[0], -v[1], -v[2]
+    out[NF_VEL], out[NF_VEL + 1], out[NF_VEL + 2] = v[0], -v[1], -v[2]
     return out
 
 

@@ -8,23 +8,38 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+from heli_common.layout import Layout
+
 Vec3 = tuple[float, float, float]
 
 # --- the same samples as one flat float64 array (what compiled code passes around) -------
 # Each slot holds that sensor's latest sample (NaN before its first); a bit mask says which
 # are new this step. The plant's sensor models write it, the sim link carries it, the
 # autopilot's estimator reads it: the in-process loop and the processes share one layout.
-OUT_IMU_T = 0
-OUT_GYRO = 1  # 3, body FLU [rad/s]
-OUT_ACCEL = 4  # 3, body FLU specific force [m/s^2]
-OUT_GPS_T = 7  # validity time of the fix delivered
-OUT_GPS_POS = 8  # 3, earth NWU [m]
-OUT_GPS_VEL = 11  # 3, earth NWU [m/s]
-OUT_ATT_T = 14
-OUT_ATT = 15  # 3, ZYX Euler [rad]
-OUT_BARO_T = 18
-OUT_BARO_ALT = 19  # height above home [m]
-N_OUT = 20
+MEASUREMENTS = Layout(
+    "measurements",
+    ("imu_t", 1),
+    ("gyro", 3),  # body FLU [rad/s]
+    ("accel", 3),  # body FLU specific force [m/s^2]
+    ("gps_t", 1),  # validity time of the fix delivered
+    ("gps_pos", 3),  # earth NWU [m]
+    ("gps_vel", 3),  # earth NWU [m/s]
+    ("att_t", 1),
+    ("att", 3),  # ZYX Euler [rad]
+    ("baro_t", 1),
+    ("baro_alt", 1),  # height above home [m]
+)
+OUT_IMU_T = MEASUREMENTS.offset("imu_t")
+OUT_GYRO = MEASUREMENTS.offset("gyro")
+OUT_ACCEL = MEASUREMENTS.offset("accel")
+OUT_GPS_T = MEASUREMENTS.offset("gps_t")
+OUT_GPS_POS = MEASUREMENTS.offset("gps_pos")
+OUT_GPS_VEL = MEASUREMENTS.offset("gps_vel")
+OUT_ATT_T = MEASUREMENTS.offset("att_t")
+OUT_ATT = MEASUREMENTS.offset("att")
+OUT_BARO_T = MEASUREMENTS.offset("baro_t")
+OUT_BARO_ALT = MEASUREMENTS.offset("baro_alt")
+N_OUT = MEASUREMENTS.size
 
 NEW_IMU = 1
 NEW_GPS = 2

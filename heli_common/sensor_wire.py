@@ -22,6 +22,7 @@ import numpy as np
 
 from heli_common.geo import GeoPoint, _radii_m
 from heli_common.jit import njit
+from heli_common.layout import Layout
 from heli_common.measurements import (
     NEW_ATT,
     NEW_BARO,
@@ -37,12 +38,20 @@ from heli_common.measurements import (
 )
 from heli_common.state import FloatArray
 
-HOME_LAT_DEG = 0
-HOME_LON_DEG = 1
-HOME_ALT_M = 2
-HOME_M_PER_DEG_LAT = 3
-HOME_M_PER_DEG_LON = 4
-N_HOME = 5
+HOME = Layout(
+    "home",
+    ("lat_deg", 1),
+    ("lon_deg", 1),
+    ("alt_m", 1),  # AMSL
+    ("m_per_deg_lat", 1),  # the tangent plane's scale at home [m/deg]
+    ("m_per_deg_lon", 1),
+)
+HOME_LAT_DEG = HOME.offset("lat_deg")
+HOME_LON_DEG = HOME.offset("lon_deg")
+HOME_ALT_M = HOME.offset("alt_m")
+HOME_M_PER_DEG_LAT = HOME.offset("m_per_deg_lat")
+HOME_M_PER_DEG_LON = HOME.offset("m_per_deg_lon")
+N_HOME = HOME.size
 
 # HIL_SENSOR.fields_updated: the IMU's six (acc x y z, gyro x y z) and pressure_alt
 IMU_FIELDS = 0x3F
@@ -56,7 +65,10 @@ def home_array(home: GeoPoint) -> FloatArray:
     """The ``home`` array of a home position."""
     m_lat, m_lon = _radii_m(home.lat_deg)
     deg = math.pi / 180.0
-    return np.array([home.lat_deg, home.lon_deg, home.alt_amsl_m, m_lat * deg, m_lon * deg])
+    h = np.empty(N_HOME)
+    h[HOME_LAT_DEG], h[HOME_LON_DEG], h[HOME_ALT_M] = home.lat_deg, home.lon_deg, home.alt_amsl_m
+    h[HOME_M_PER_DEG_LAT], h[HOME_M_PER_DEG_LON] = m_lat * deg, m_lon * deg
+    return h
 
 
 @njit

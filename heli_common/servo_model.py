@@ -66,24 +66,30 @@ from collections.abc import Sequence
 import numpy as np
 
 from heli_common.jit import njit
+from heli_common.layout import Layout
 from heli_common.state import N_PITCH, PITCH_NAMES, FloatArray
 from heli_common.world import Servos
 
-# params[channel, SP_*]
-SP_DELAY_STEPS = 0
-SP_RATE_STEP = 1
-SP_ALPHA = 2
-SP_LO = 3
-SP_HI = 4
-SP_QUANTUM = 5
-SP_DEADBAND = 6
-N_SERVO_PARAM = 7
+# params[channel, SP_*]: one row per channel
+SERVO_PARAM = Layout(
+    "servo parameters",
+    ("delay_steps", 1), ("rate_step", 1), ("alpha", 1), ("lo", 1), ("hi", 1), ("quantum", 1), ("deadband", 1),
+)  # fmt: skip
+SP_DELAY_STEPS = SERVO_PARAM.offset("delay_steps")
+SP_RATE_STEP = SERVO_PARAM.offset("rate_step")
+SP_ALPHA = SERVO_PARAM.offset("alpha")
+SP_LO = SERVO_PARAM.offset("lo")
+SP_HI = SERVO_PARAM.offset("hi")
+SP_QUANTUM = SERVO_PARAM.offset("quantum")
+SP_DEADBAND = SERVO_PARAM.offset("deadband")
+N_SERVO_PARAM = SERVO_PARAM.size
 
-# state[SS_* + ...]
-SS_RING_INDEX = 0
-SS_POSITION = 1
-SS_TARGET = SS_POSITION + N_PITCH
-SS_FIFO = SS_TARGET + N_PITCH
+# state[SS_* + ...]: the fixed part; the FIFO ring (its slots set by the largest delay) follows
+SERVO_STATE = Layout("servo state", ("ring_index", 1), ("position", N_PITCH), ("target", N_PITCH))
+SS_RING_INDEX = SERVO_STATE.offset("ring_index")
+SS_POSITION = SERVO_STATE.offset("position")
+SS_TARGET = SERVO_STATE.offset("target")
+SS_FIFO = SERVO_STATE.end
 
 _DEG_60_RAD = math.pi / 3.0
 

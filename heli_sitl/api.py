@@ -27,7 +27,7 @@ import math
 import traceback
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
@@ -35,8 +35,10 @@ from autopilot.estimation.config import EstimatorConfig
 from autopilot.flight_metrics import FlightMetrics
 from autopilot.metrics import FlightRecord
 from autopilot.pid.gains import PidGains
+from autopilot.reference import N_REF
 from autopilot.scenario import Scenario
 from autopilot.tlc.gains import Gains
+from autopilot.trajectory.csv_table import trajectory_from_csv
 from autopilot.user_controller import BUILT_IN, load_class, normalise_spec
 from heli_common.airframe import Airframe
 from heli_common.config import ConfigError
@@ -48,6 +50,7 @@ from heli_common.world import World
 from heli_plant.trim import Linearization, Trim
 from heli_plant.trim import linearize as _linearize
 from heli_plant.trim import trim as _trim
+from heli_sitl.campaigns.counts import CampaignCounts
 from heli_sitl.closed_loop import SimOptions
 from heli_sitl.closed_loop import simulate as _simulate
 
@@ -191,6 +194,24 @@ def _scenario(scenario: str | Path | Scenario, controller: object) -> Scenario:
     return sc
 
 
+class TrajectoryLike(Protocol):
+    """What a trajectory must offer the bench: the reference rows at the given times."""
+
+    def sample(self, t_s: FloatArray) -> FloatArray: ...
+
+
+def _trajectory(trajectory: str | Path | TrajectoryLike) -> TrajectoryLike:
+    if isinstance(trajectory, (str, Path)):
+        return trajectory_from_csv(trajectory)
+    if not callable(getattr(trajectory, "sample", None)):
+        raise ConfigError(f"trajectory: expected a CSV file or an object with sample(t), got {trajectory!r}")
+    probe = np.asarray(trajectory.sample(np.array([0.0, 0.01])), dtype=float)
+    if probe.shape != (2, N_REF):
+        raise ConfigError(f"trajectory: sample(t) must return ({N_REF},) reference rows per time (position, "
+                          f"velocity, acceleration, earth NWU), got {probe.shape} for 2 times")  # fmt: skip
+    return trajectory
+
+
 def _name(v: object, default: str) -> str:
     if v is None:
         return default
@@ -207,6 +228,7 @@ def simulate(
     estimator: str | Path | EstimatorConfig | None = None,
     duration_s: float | None = None,
     seed: int | None = None,
+    trajectory: str | Path | TrajectoryLike | None = None,
 ) -> Flight:
     """Fly ``scenario`` in-process on ``plant`` in ``world`` (None: the paper's ideal world)
     with ``controller``: a :class:`TLC` or :class:`PID`, "tlc"/"pid" with their shipped
@@ -214,7 +236,11 @@ def simulate(
     contract in :mod:`autopilot.user_controller`); None: the scenario's TLC. ``seed`` seeds
     the world's turbulence and sensors. ``estimator`` tunes the navigation filter where the
     world has sensors. An exception raised by your controller's code returns the flight
-    FAILED with the traceback in ``error``."""
+    FAILED with the traceback in ``error``. ``trajectory`` replaces the scenario's: a CSV
+    table (``t_s, x_m, y_m, z_m`` earth NWU, optional ``vx_m_s``..., ``ax_m_s2``...,
+    ``yaw_rad``; :mod:`autopilot.trajectory.csv_table`) or any object with ``sample(t)``
+    returning the (N, 9) reference rows (and ``duration_s``, the flight's length unless
+    ``duration_s`` is given)."""
     user: str | type[Any] | None = None
     if isinstance(controller, str):
         user = normalise_spec(controller)  # raises, naming the forms
@@ -236,6 +262,12 @@ def simulate(
     if seed is not None and not good_seed:
         raise ConfigError(f"seed: expected an integer in [0, {SEED_MAX}], got {seed!r}")
     sc = _scenario(scenario, controller)
+    if trajectory is not None:
+        traj = _trajectory(trajectory)
+        sc = dataclasses.replace(sc, trajectory=traj)  # type: ignore[arg-type]
+        end = getattr(traj, "duration_s", None)
+        if duration_s is None and isinstance(end, (int, float)) and 0.0 < end < math.inf:
+            duration_s = float(end)
     pm = plant if isinstance(plant, PlantModel) else PlantModel.load(plant)
     w = world if isinstance(world, World) or world is None else World.load(world)
     if seed is not None:
@@ -317,8 +349,107 @@ def linearize(
     return _linearize(_trim(pm, af, speed_m_s=speed_m_s), pm, af)
 
 
+@dataclass(frozen=True)
+class CampaignResult:
+    """A campaign's rows (one per flight: its settings, seed, metrics, or its error) and how
+    its flights ended; ``summary`` is campaign.json as written in ``out``."""
+
+    name: str
+    out: Path
+    counts: CampaignCounts
+    table: pa.Table
+    summary: dict[str, Any]
+
+    def to_pandas(self) -> pd.DataFrame:
+        return self.table.to_pandas()
+
+
+def campaign(
+    spec: str | Path = "robustness",
+    samples: int | None = None,
+    controller: str | None = None,
+    out: str | Path | None = None,
+    workers: int | None = None,
+    quiet: bool = True,
+) -> CampaignResult:
+    """Fly a campaign file (or a name in configs/campaigns/) on an embedded Dask cluster;
+    ``out`` keeps the rows and figures (a re-run resumes it; None: a fresh temporary
+    directory). ``controller``: "tlc", "pid" or your class as "module:Class" /
+    "file.py:Class" (a name, so the workers can load it).
+
+    >>> c = hs.campaign("robustness", samples=4, workers=1)  # doctest: +SKIP
+    >>> c.counts.flights, c.counts.failed                   # doctest: +SKIP
+    (4, 0)
+    """
+    import tempfile
+
+    import pyarrow.parquet as pq
+
+    from heli_sitl.campaigns.run import run_campaign
+
+    if controller is not None and not isinstance(controller, str):
+        raise ConfigError("controller: a campaign's workers load the controller by name: give 'tlc', 'pid', "
+                          f"'module:Class' or 'file.py:Class', got {controller!r}")  # fmt: skip
+    d = Path(out) if out is not None else Path(tempfile.mkdtemp(prefix="heli-campaign-"))
+    summary = run_campaign(spec, d, samples=samples, workers=workers, quiet=quiet, controller=controller)
+    table = pq.read_table(d / "results.parquet")
+    return CampaignResult(str(summary["campaign"].get("name", spec)), d, CampaignCounts.of(table), table,
+                          summary)  # fmt: skip
+
+
+@dataclass(frozen=True)
+class ComparisonResult:
+    """A comparison's report (``report.md``), its numbers (``comparison.json``, as
+    ``summary``) and figures, in ``out``."""
+
+    out: Path
+    summary: dict[str, Any]
+
+    @property
+    def report(self) -> str:
+        return (self.out / "report.md").read_text()
+
+
+def compare(
+    spec: str | Path = "compare.toml",
+    out: str | Path | None = None,
+    work: str | Path | None = None,
+    samples: int | None = None,
+    seeds: int | None = None,
+    workers: int | None = None,
+    quiet: bool = True,
+) -> ComparisonResult:
+    """Fly a comparison file (configs/compare.toml, or yours: contenders may be your own
+    classes, ``controller = "file.py:Class"``): every contender the same flights, paired,
+    with intervals. ``work`` keeps the campaigns' rows (a re-run resumes); None for either
+    directory: a fresh temporary one."""
+    import tempfile
+
+    from heli_sitl.comparison import run_compare
+
+    d = Path(out) if out is not None else Path(tempfile.mkdtemp(prefix="heli-compare-"))
+    w = Path(work) if work is not None else d / "work"
+    summary = run_compare(spec, d, w, samples=samples, workers=workers, quiet=quiet, seeds=seeds,
+                          command=f"hs.compare({str(spec)!r})")  # fmt: skip
+    return ComparisonResult(d, summary)
+
+
 STATE_LABELS = STATE_NAMES
 
-__all__ = ["PID", "REF_LABELS", "STATE_LABELS", "TLC", "ExitStatus", "Flight", "FlightMetrics",
-           "Linearization",
-           "Trim", "linearize", "simulate", "trim"]
+__all__ = [
+    "PID",
+    "REF_LABELS",
+    "STATE_LABELS",
+    "TLC",
+    "CampaignCounts",
+    "CampaignResult",
+    "ExitStatus",
+    "Flight",
+    "FlightMetrics",
+    "Linearization",
+    "Trim",
+    "campaign",
+    "linearize",
+    "simulate",
+    "trim",
+]

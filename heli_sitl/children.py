@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import shlex
 import signal
 import subprocess
 import sys
@@ -55,6 +56,11 @@ class Child:
         if log_path is not None:
             log_path.parent.mkdir(parents=True, exist_ok=True)
             self._log = log_path.open("w", encoding="utf-8", errors="replace")
+            # a quiet run leaves nothing else here (the processes log warnings and errors
+            # only): say what ran, so an empty-looking log is not mistaken for a lost one
+            self._log.write(f"# {name}: {shlex.join(cmd)}\n# its warnings and errors follow (none: a "
+                            "clean run); -v on its command line logs more\n")  # fmt: skip
+            self._log.flush()
         self.proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, preexec_fn=die_with_parent)
         self._reader = threading.Thread(target=self._drain, name=f"drain-{name}", daemon=True)
         self._reader.start()
@@ -79,6 +85,11 @@ class Child:
                     self.echo_dropped += 1
         stream.close()
         if self._log is not None:
+            try:
+                ended = f"ended with exit status {self.proc.wait(5.0)}"
+            except subprocess.TimeoutExpired:
+                ended = "closed its stderr"
+            self._log.write(f"# {self.name} {ended} ({self.lines} lines above)\n")
             self._log.close()
 
     def join_output(self, timeout_s: float = 5.0) -> None:

@@ -95,7 +95,7 @@ def _simulate(args: argparse.Namespace) -> int:
 def _tune(args: argparse.Namespace) -> int:
     from autopilot.pid.gains import PidGains
     from autopilot.scenario import Scenario
-    from heli_sitl.compare import command_line
+    from heli_sitl.comparison import command_line
     from heli_sitl.tune import MarginConstraint, tune, write_gains
 
     scenario = Scenario.load(args.scenario, gains=args.gains if args.controller == "tlc" else None)
@@ -202,7 +202,7 @@ def _margins(args: argparse.Namespace) -> int:
 
 
 def _compare(args: argparse.Namespace) -> int:
-    from heli_sitl.compare import command_line, run_compare
+    from heli_sitl.comparison import command_line, run_compare
 
     run_compare(args.file, Path(args.out), Path(args.work), samples=args.samples, seeds=args.seeds,
                 workers=args.workers,
@@ -343,13 +343,13 @@ def _demo(args: argparse.Namespace) -> int:
 
 
 def _campaign(args: argparse.Namespace) -> int:
-    from heli_sitl.campaign.run import run_campaign
+    from heli_sitl.campaigns.run import run_campaign
 
     summary = run_campaign(args.file, Path(args.out), samples=args.samples, workers=args.workers,
                            scheduler=args.scheduler, quiet=args.quiet,
                            controller=args.controller)  # fmt: skip
     if args.via == "processes":
-        from heli_sitl.campaign.via_processes import compare
+        from heli_sitl.campaigns.via_processes import compare
 
         compare(args.file, Path(args.out), args.limit, samples=args.samples, quiet=args.quiet,
                 controller=args.controller)  # fmt: skip

@@ -27,8 +27,8 @@ from heli_common.plant_model import PlantModel
 from heli_common.state import EPS, ETA
 from heli_common.world import World
 from heli_plant.trim import linearize, trim
-from heli_sitl.campaign.flight import metrics
-from heli_sitl.campaign.spec import CampaignSpec
+from heli_sitl.campaigns.flight import metrics
+from heli_sitl.campaigns.spec import CampaignSpec
 from heli_sitl.closed_loop import SimOptions, simulate
 from heli_sitl.loop_linear import linearize_loop, servo_model
 

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from autopilot.estimation.config import EstimatorConfig
-from autopilot.flight_metrics import window_value
+from autopilot.flight_metrics import FlightMetrics, window_value
 from autopilot.scenario import Scenario
 from heli_common.sensors import Baro, Gps, Sensors
 from heli_common.world import World
@@ -34,10 +34,11 @@ WANDER_M = (0.0, 0.1, 0.2, 0.3, 0.5, 0.75, 1.0, 1.5, 2.1)
 
 
 def fly(sc: Scenario, world: World, est: EstimatorConfig) -> dict[str, Any]:
-    s = simulate(sc, SimOptions(world=world, estimator=est)).summary()
+    rec = simulate(sc, SimOptions(world=world, estimator=est))
+    s, m = rec.summary(), FlightMetrics.of(rec)
     out = {
-        "rms45_m": window_value(s["rms_pos_err_m"], 45.0),
-        "max10_m": window_value(s["max_pos_err_m"], 10.0),
+        "rms45_m": m.rms_45_m,
+        "max10_m": m.max_err_after_10_s_m,
         "realtime_factor": s["realtime_factor"],
     }
     if "estimate" not in s:  # sensors off: the truth

@@ -16,13 +16,13 @@ import heli_sitl as hs
 from autopilot.scenario import Scenario
 from heli_common.config import ConfigError
 from heli_sitl import api
-from heli_sitl.campaign.flight import metrics as campaign_metrics
-from heli_sitl.campaign.spec import CampaignSpec
+from heli_sitl.campaigns.flight import metrics as campaign_metrics
+from heli_sitl.campaigns.spec import CampaignSpec
 from heli_sitl.closed_loop import SimOptions, simulate
 
 
 def test_the_module_examples_run() -> None:
-    result = doctest.testmod(api, optionflags=doctest.ELLIPSIS)
+    result = doctest.testmod(api, optionflags=doctest.ELLIPSIS, extraglobs={"hs": hs})
     assert result.attempted >= 5 and result.failed == 0
 
 
@@ -110,3 +110,28 @@ def test_a_lost_flight_says_so() -> None:
 def test_bad_arguments_raise_a_config_error_naming_them(kwargs: dict[str, object], expected: str) -> None:
     with pytest.raises(ConfigError, match=expected):
         hs.simulate(**kwargs)  # type: ignore[arg-type]
+
+
+def test_a_trajectory_from_a_csv_table_or_any_object_with_sample(tmp_path: Path) -> None:
+    root = Path(__file__).resolve().parent.parent
+    f = hs.simulate(trajectory=root / "docs/examples/trajectory_box.csv")
+    assert f.status is hs.ExitStatus.COMPLETED and f.t_s[-1] == pytest.approx(80.0)  # the table's length
+    assert f.metrics is not None and f.metrics.rms_m["45-80"] == pytest.approx(0.162, abs=0.002)
+
+    class Hover:  # any object with the contract's sample(t): hold 3 m above (3, -3)
+        duration_s = 20.0
+
+        def sample(self, t: np.ndarray) -> np.ndarray:
+            out = np.zeros((np.size(t), 9))
+            out[:, 0:3] = (3.0, -3.0, 3.0)
+            return out
+
+    g = hs.simulate(trajectory=Hover())
+    assert g.t_s[-1] == pytest.approx(20.0) and g.metrics is not None
+    assert g.metrics.max_err_after_10_s_m == pytest.approx(0.155, abs=0.005)  # the paper TLC settling slowly
+    bad = tmp_path / "bad.csv"
+    bad.write_text("t_s,x_m,y_m,z_m\n0,0,0,1\n1,0,0,nan\n")
+    with pytest.raises(ConfigError, match=r"line 3 \(data row 2\)"):
+        hs.simulate(trajectory=bad)
+    with pytest.raises(ConfigError, match="an object with sample"):
+        hs.simulate(trajectory=42)  # type: ignore[arg-type]

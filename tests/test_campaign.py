@@ -19,10 +19,10 @@ from scipy import stats
 
 from heli_common.config import ConfigError
 from heli_common.mavlink.udp import free_udp_port
-from heli_sitl.campaign import engine
-from heli_sitl.campaign.run import prepare, run_campaign
-from heli_sitl.campaign.sampling import flight_count, sample_table
-from heli_sitl.campaign.spec import parse
+from heli_sitl.campaigns import engine
+from heli_sitl.campaigns.run import prepare, run_campaign
+from heli_sitl.campaigns.sampling import flight_count, sample_table
+from heli_sitl.campaigns.spec import parse
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -154,7 +154,7 @@ def test_the_controller_is_a_campaign_key_and_its_gains_can_vary(tmp_path: Path)
 
     from autopilot.pid.gains import default_pid_gains
     from autopilot.scenario import Scenario
-    from heli_sitl.campaign.flight import fly, metrics
+    from heli_sitl.campaigns.flight import fly, metrics
     from heli_sitl.closed_loop import SimOptions, simulate
 
     f = tmp_path / "c.toml"
@@ -193,8 +193,8 @@ def test_the_plant_is_a_campaign_key(tmp_path: Path) -> None:
     """``plant = "gavrilets"`` flies every sample on the rotor plant: a row is that flight's
     metrics; a plant that does not load is refused before anything flies."""
     from heli_common.plant_model import PlantModel
-    from heli_sitl.campaign.flight import fly, metrics
-    from heli_sitl.campaign.settings import apply
+    from heli_sitl.campaigns.flight import fly, metrics
+    from heli_sitl.campaigns.settings import apply
     from heli_sitl.closed_loop import SimOptions, simulate
 
     body = ('samples = 2\nseed = 4\nduration_s = 10.0\n[[vary]]\nkey = "initial.yaw_error_rad"\n'
@@ -425,7 +425,7 @@ def test_a_killed_campaign_resumes_without_losing_or_repeating_a_flight(tmp_path
 def test_via_processes_flies_the_in_process_rows_again_over_mavlink(tmp_path: Path) -> None:
     """--via processes: a sample's scenario, gains, world and estimator written as files and
     flown by plant and autopilot processes in lockstep give the in-process row's RMS."""
-    from heli_sitl.campaign.via_processes import compare
+    from heli_sitl.campaigns.via_processes import compare
 
     f = small_file(tmp_path)
     f.write_text(f.read_text().replace("samples = 12", "samples = 2"))
@@ -442,8 +442,8 @@ def test_campaign_plots_survive_a_metric_with_no_finite_bins(tmp_path: Path) -> 
     histogram bins (matplotlib raises): the figure states the range and the run goes on."""
     import pyarrow as pa
 
-    from heli_sitl.campaign.report import plots
-    from heli_sitl.campaign.spec import CampaignSpec
+    from heli_sitl.campaigns.report import plots
+    from heli_sitl.campaigns.spec import CampaignSpec
 
     spec = CampaignSpec(name="huge", metrics=("rms_10_m",))
     v = [8.2e16] * 139 + [8.2e16 + 16.0]
@@ -458,7 +458,7 @@ def test_a_campaign_with_failed_flights_exits_non_zero(
 ) -> None:
     """A flight that raised is the bench's fault: the command says so and exits 3 (a flight
     that did not converge is the controller's result and exits 0)."""
-    import heli_sitl.campaign.run as run
+    import heli_sitl.campaigns.run as run
     from heli_sitl.cli import main
 
     def fake(failed: int) -> object:

@@ -24,8 +24,8 @@ from heli_common.state import EPS, ETA, N_PITCH, N_STATE, P_X, Q_Y
 from heli_common.world import World
 from heli_plant import rotor
 from heli_plant.trim import PlantFunction, trim
-from heli_sitl.campaign.flight import metrics
-from heli_sitl.campaign.spec import CampaignSpec
+from heli_sitl.campaigns.flight import metrics
+from heli_sitl.campaigns.spec import CampaignSpec
 from heli_sitl.closed_loop import SimOptions, simulate
 from heli_sitl.demo import DemoOptions, run_demo
 from heli_sitl.loop_linear import linearize_loop

@@ -14,9 +14,9 @@ Layouts (all ``float64``; the names are the only way code refers to an element):
 
 * ``params`` (``N_PARAMS``): the tuning, built by :func:`make_params` (``K_*``).
 * ``state`` (``state_size(n_buf)``): the filter (``E_*``) followed by a ring buffer of
-  ``n_buf`` records of ``N_REC`` values (``R_*``). Filter values are per axis: ``E_X + 3 a``
-  holds ``[p, v, b]`` of axis ``a`` (0 north, 1 west, 2 up), ``E_P + 9 a`` its 3x3
-  covariance, row-major.
+  ``n_buf`` records of ``N_REC`` values (``R_*``). Filter values are per axis: ``E_X + N_AX a``
+  holds ``[p, v, b]`` (``I_*``) of axis ``a`` (0 north, 1 west, 2 up), ``E_P + N_COV a`` its
+  3x3 covariance, row-major (``COV_*``).
 * a record covers one tick interval ``[t0, t0 + dt]``: the filter at ``t0`` (``R_X0``,
   ``R_P0``), the input over the interval (``R_A``, ``R_QA``), and the GPS fix and baro
   height whose validity time falls inside it (``R_GPS_*``, ``R_BARO_*``), so the interval
@@ -37,6 +37,7 @@ from scipy.stats import chi2
 from autopilot.estimation.config import EstimatorConfig
 from heli_common.jit import njit
 from heli_common.kinematics import euler_rates, rot_body_to_earth, wrap_pi
+from heli_common.layout import Layout
 from heli_common.measurements import (
     NEW_ATT,
     NEW_BARO,
@@ -54,86 +55,175 @@ from heli_common.measurements import (
     GpsFix,
     ImuSample,
 )
-from heli_common.state import N_STATE, FloatArray
+from heli_common.state import EULER, N_STATE, OMEGA, P_X, PHI, PSI, THETA, U_F, V_L, W_U, X_N, FloatArray
 
 # --- per-axis filter state [p, v, b] and the axes
-I_P, I_V, I_B = 0, 1, 2
-N_AX = 3  # states per axis
+AXIS_STATE = Layout("estimator axis state", ("p", 1), ("v", 1), ("b", 1))
+I_P = AXIS_STATE.offset("p")
+I_V = AXIS_STATE.offset("v")
+I_B = AXIS_STATE.offset("b")
+N_AX = AXIS_STATE.size  # states per axis
 AX_N, AX_W, AX_U = 0, 1, 2
+N_AXES = 3  # north, west, up: one filter each
+N_COV = N_AX * N_AX  # one axis' covariance, row-major: element (i, j) at N_AX * i + j
+COV_PP = N_AX * I_P + I_P
+COV_PV = N_AX * I_P + I_V
+COV_PB = N_AX * I_P + I_B
+COV_VP = N_AX * I_V + I_P
+COV_VV = N_AX * I_V + I_V
+COV_VB = N_AX * I_V + I_B
+COV_BP = N_AX * I_B + I_P
+COV_BV = N_AX * I_B + I_V
+COV_BB = N_AX * I_B + I_B
+N_FX = N_AXES * N_AX  # the filter state of every axis: E_X + N_AX a holds axis a's
+N_FP = N_AXES * N_COV  # the covariance of every axis: E_P + N_COV a holds axis a's
 
 # --- params (K_*)
-K_G = 0  # gravity [m/s^2]
-K_QA = 1  # accelerometer white noise PSD [(m/s^2)^2/Hz]
-K_QATT = 2  # attitude-noise variance times the nominal tick [rad^2 s]
-K_QB = 3  # bias random-walk PSD [(m/s^2)^2/s]
-K_P0_POS = 4  # initial variances
-K_P0_VEL = 5
-K_P0_BIAS = 6
-K_R_POS = 7  # GPS position variance per axis (3)
-K_R_VEL = 10  # GPS velocity variance per axis (3)
-K_USE_VEL = 13  # 1: fuse GPS velocity
-K_GATE_POS = 14  # chi-square threshold, 3 dof (position only)
-K_GATE_POS_VEL = 15  # 6 dof (position and velocity)
-K_GATE_BARO = 16  # 1 dof
-K_MAX_REJECTS = 17
-K_GPS_TIMEOUT = 18  # [s]
-K_R_BARO = 19  # baro variance [m^2]
-K_N_BUF = 20  # records in the ring buffer
-K_GYRO_BIAS = 21  # (3) [rad/s]
-K_ATT_TAU = 24  # attitude low-pass time constant [s], 0: pass-through
-K_RATE_TAU = 25  # rate low-pass time constant [s], 0: pass-through
-K_DT_NOM = 26  # nominal tick [s]
-K_T_TOL = 27  # a validity time up to this far after "now" is taken as now [s]
-N_PARAMS = 28
+PARAMS = Layout(
+    "estimator parameters",
+    ("g", 1),  # gravity [m/s^2]
+    ("qa", 1),  # accelerometer white noise PSD [(m/s^2)^2/Hz]
+    ("qatt", 1),  # attitude-noise variance times the nominal tick [rad^2 s]
+    ("qb", 1),  # bias random-walk PSD [(m/s^2)^2/s]
+    ("p0_pos", 1),  # initial variances
+    ("p0_vel", 1),
+    ("p0_bias", 1),
+    ("r_pos", N_AXES),  # GPS position variance per axis
+    ("r_vel", N_AXES),  # GPS velocity variance per axis
+    ("use_vel", 1),  # 1: fuse GPS velocity
+    ("gate_pos", 1),  # chi-square threshold, 3 dof (position only)
+    ("gate_pos_vel", 1),  # 6 dof (position and velocity)
+    ("gate_baro", 1),  # 1 dof
+    ("max_rejects", 1),
+    ("gps_timeout", 1),  # [s]
+    ("r_baro", 1),  # baro variance [m^2]
+    ("n_buf", 1),  # records in the ring buffer
+    ("gyro_bias", 3),  # [rad/s]
+    ("att_tau", 1),  # attitude low-pass time constant [s], 0: pass-through
+    ("rate_tau", 1),  # rate low-pass time constant [s], 0: pass-through
+    ("dt_nom", 1),  # nominal tick [s]
+    ("t_tol", 1),  # a validity time up to this far after "now" is taken as now [s]
+)
+K_G = PARAMS.offset("g")
+K_QA = PARAMS.offset("qa")
+K_QATT = PARAMS.offset("qatt")
+K_QB = PARAMS.offset("qb")
+K_P0_POS = PARAMS.offset("p0_pos")
+K_P0_VEL = PARAMS.offset("p0_vel")
+K_P0_BIAS = PARAMS.offset("p0_bias")
+K_R_POS = PARAMS.offset("r_pos")
+K_R_VEL = PARAMS.offset("r_vel")
+K_USE_VEL = PARAMS.offset("use_vel")
+K_GATE_POS = PARAMS.offset("gate_pos")
+K_GATE_POS_VEL = PARAMS.offset("gate_pos_vel")
+K_GATE_BARO = PARAMS.offset("gate_baro")
+K_MAX_REJECTS = PARAMS.offset("max_rejects")
+K_GPS_TIMEOUT = PARAMS.offset("gps_timeout")
+K_R_BARO = PARAMS.offset("r_baro")
+K_N_BUF = PARAMS.offset("n_buf")
+K_GYRO_BIAS = PARAMS.offset("gyro_bias")
+K_ATT_TAU = PARAMS.offset("att_tau")
+K_RATE_TAU = PARAMS.offset("rate_tau")
+K_DT_NOM = PARAMS.offset("dt_nom")
+K_T_TOL = PARAMS.offset("t_tol")
+N_PARAMS = PARAMS.size
 
-# --- filter (E_*)
-E_T = 0  # time of the estimate [s]; NaN until the first predict
-E_X = 1  # (9) [p, v, b] per axis
-E_P = 10  # (27) 3x3 covariance per axis
-E_ATT = 37  # (3) Euler ZYX [rad]
-E_RATE = 40  # (3) body rates FLU [rad/s]
-E_A = 43  # (3) last earth-frame acceleration input R f + g_E [m/s^2]
-E_QA = 46  # (3) last acceleration noise PSD per axis
-E_T_FIX = 49  # validity time of the newest accepted GPS fix (the first tick before any)
-E_N_FIX = 50  # accepted GPS fixes
-E_N_REJECT = 51  # fixes rejected by the gate
-E_N_CONSEC = 52  # consecutive rejected fixes
-E_N_TOO_OLD = 53  # measurements older than the buffer (dropped)
-E_N_BAD = 54  # measurements with a non-finite value or a validity time in the future
-E_N_RESET = 55  # position/velocity re-initialised from a fix after repeated rejections
-E_N_BARO = 56  # accepted baro heights
-E_N_BARO_REJECT = 57
-E_N_BAD_IMU = 58  # ticks with a non-finite gyro or accelerometer (last value held)
-E_NIS = 59  # normalised innovation squared of the last GPS fix (gated or not)
-E_T_INNOV = 60  # its validity time
-E_INNOV_POS = 61  # (3) position innovation z - H x [m]
-E_INNOV_VEL = 64  # (3) velocity innovation [m/s] (NaN when not fused)
-E_S_POS = 67  # (3) innovation variances and covariance per axis
-E_S_VEL = 70  # (3)
-E_S_PV = 73  # (3)
-E_BARO_INNOV = 76
-E_BARO_S = 77
-E_BARO_NIS = 78
-E_HEAD = 79  # ring-buffer slot of the newest record
-E_COUNT = 80  # records held
-E_HIST = 81  # first record
-N_FILTER = E_HIST
+# --- filter (E_*); the ring buffer of records follows at E_HIST
+FILTER = Layout(
+    "estimator filter",
+    ("t", 1),  # time of the estimate [s]; NaN until the first predict
+    ("x", N_FX),  # [p, v, b] per axis
+    ("p", N_FP),  # 3x3 covariance per axis
+    ("att", 3),  # Euler ZYX [rad]
+    ("rate", 3),  # body rates FLU [rad/s]
+    ("a", N_AXES),  # last earth-frame acceleration input R f + g_E [m/s^2]
+    ("qa", N_AXES),  # last acceleration noise PSD per axis
+    ("t_fix", 1),  # validity time of the newest accepted GPS fix (the first tick before any)
+    ("n_fix", 1),  # accepted GPS fixes
+    ("n_reject", 1),  # fixes rejected by the gate
+    ("n_consec", 1),  # consecutive rejected fixes
+    ("n_too_old", 1),  # measurements older than the buffer (dropped)
+    ("n_bad", 1),  # measurements with a non-finite value or a validity time in the future
+    ("n_reset", 1),  # position/velocity re-initialised from a fix after repeated rejections
+    ("n_baro", 1),  # accepted baro heights
+    ("n_baro_reject", 1),
+    ("n_bad_imu", 1),  # ticks with a non-finite gyro or accelerometer (last value held)
+    ("nis", 1),  # normalised innovation squared of the last GPS fix (gated or not)
+    ("t_innov", 1),  # its validity time
+    ("innov_pos", N_AXES),  # position innovation z - H x [m]
+    ("innov_vel", N_AXES),  # velocity innovation [m/s] (NaN when not fused)
+    ("s_pos", N_AXES),  # innovation variances and covariance per axis
+    ("s_vel", N_AXES),
+    ("s_pv", N_AXES),
+    ("baro_innov", 1),
+    ("baro_s", 1),
+    ("baro_nis", 1),
+    ("head", 1),  # ring-buffer slot of the newest record
+    ("count", 1),  # records held
+)
+E_T = FILTER.offset("t")
+E_X = FILTER.offset("x")
+E_P = FILTER.offset("p")
+E_ATT = FILTER.offset("att")
+E_RATE = FILTER.offset("rate")
+E_A = FILTER.offset("a")
+E_QA = FILTER.offset("qa")
+E_T_FIX = FILTER.offset("t_fix")
+E_N_FIX = FILTER.offset("n_fix")
+E_N_REJECT = FILTER.offset("n_reject")
+E_N_CONSEC = FILTER.offset("n_consec")
+E_N_TOO_OLD = FILTER.offset("n_too_old")
+E_N_BAD = FILTER.offset("n_bad")
+E_N_RESET = FILTER.offset("n_reset")
+E_N_BARO = FILTER.offset("n_baro")
+E_N_BARO_REJECT = FILTER.offset("n_baro_reject")
+E_N_BAD_IMU = FILTER.offset("n_bad_imu")
+E_NIS = FILTER.offset("nis")
+E_T_INNOV = FILTER.offset("t_innov")
+E_INNOV_POS = FILTER.offset("innov_pos")
+E_INNOV_VEL = FILTER.offset("innov_vel")
+E_S_POS = FILTER.offset("s_pos")
+E_S_VEL = FILTER.offset("s_vel")
+E_S_PV = FILTER.offset("s_pv")
+E_BARO_INNOV = FILTER.offset("baro_innov")
+E_BARO_S = FILTER.offset("baro_s")
+E_BARO_NIS = FILTER.offset("baro_nis")
+E_HEAD = FILTER.offset("head")
+E_COUNT = FILTER.offset("count")
+E_HIST = FILTER.end  # first record
+N_FILTER = FILTER.size
 
 # --- one record of the ring buffer (R_*), relative to its start
-R_T0 = 0  # start of the interval [s]
-R_DT = 1  # its length [s]
-R_A = 2  # (3) earth-frame acceleration input over the interval
-R_QA = 5  # (3) acceleration noise PSD per axis
-R_X0 = 8  # (9) filter state at t0
-R_P0 = 17  # (27) covariance at t0
-R_GPS_FLAG = 44  # M_* below
-R_GPS_TAU = 45  # validity time - t0
-R_GPS_POS = 46  # (3)
-R_GPS_VEL = 49  # (3) NaN: position only
-R_BARO_FLAG = 52
-R_BARO_TAU = 53
-R_BARO_Z = 54
-N_REC = 55
+RECORD = Layout(
+    "estimator record",
+    ("t0", 1),  # start of the interval [s]
+    ("dt", 1),  # its length [s]
+    ("a", N_AXES),  # earth-frame acceleration input over the interval
+    ("qa", N_AXES),  # acceleration noise PSD per axis
+    ("x0", N_FX),  # filter state at t0
+    ("p0", N_FP),  # covariance at t0
+    ("gps_flag", 1),  # M_* below
+    ("gps_tau", 1),  # validity time - t0
+    ("gps_pos", N_AXES),
+    ("gps_vel", N_AXES),  # NaN: position only
+    ("baro_flag", 1),
+    ("baro_tau", 1),
+    ("baro_z", 1),
+)
+R_T0 = RECORD.offset("t0")
+R_DT = RECORD.offset("dt")
+R_A = RECORD.offset("a")
+R_QA = RECORD.offset("qa")
+R_X0 = RECORD.offset("x0")
+R_P0 = RECORD.offset("p0")
+R_GPS_FLAG = RECORD.offset("gps_flag")
+R_GPS_TAU = RECORD.offset("gps_tau")
+R_GPS_POS = RECORD.offset("gps_pos")
+R_GPS_VEL = RECORD.offset("gps_vel")
+R_BARO_FLAG = RECORD.offset("baro_flag")
+R_BARO_TAU = RECORD.offset("baro_tau")
+R_BARO_Z = RECORD.offset("baro_z")
+N_REC = RECORD.size
 
 # measurement flags in a record
 M_NONE, M_PENDING, M_ACCEPTED, M_RESET = 0.0, 1.0, 2.0, 3.0
@@ -145,6 +235,15 @@ NO_FIX = -1  # est_tick: no new fix this tick
 P_OK, P_FIRST, P_NO_ADVANCE, P_BAD_IMU = 0, 1, 2, 3
 
 _TAU_EPS = 1e-9  # slack on the interval bounds [s]
+
+# what _innovation hands back for one axis: the innovations and their covariance
+_INNOV = Layout("innovation", ("yp", 1), ("yv", 1), ("spp", 1), ("spv", 1), ("svv", 1))
+_IN_YP = _INNOV.offset("yp")
+_IN_YV = _INNOV.offset("yv")
+_IN_SPP = _INNOV.offset("spp")
+_IN_SPV = _INNOV.offset("spv")
+_IN_SVV = _INNOV.offset("svv")
+_N_INNOV = _INNOV.size
 
 
 def state_size(n_buf: int) -> int:
@@ -164,8 +263,8 @@ def make_params(config: EstimatorConfig, rate_hz: float) -> FloatArray:
     k[K_P0_POS] = config.init_pos_sigma_m**2
     k[K_P0_VEL] = config.init_vel_sigma_m_s**2
     k[K_P0_BIAS] = config.init_accel_bias_sigma**2
-    k[K_R_POS : K_R_POS + 3] = np.square(config.gps_pos_sigma_m)
-    k[K_R_VEL : K_R_VEL + 3] = np.square(config.gps_vel_sigma_m_s)
+    k[K_R_POS : K_R_POS + N_AXES] = np.square(config.gps_pos_sigma_m)
+    k[K_R_VEL : K_R_VEL + N_AXES] = np.square(config.gps_vel_sigma_m_s)
     k[K_USE_VEL] = 1.0 if config.use_gps_velocity else 0.0
     k[K_GATE_POS] = float(chi2.ppf(config.gate_probability, 3))
     k[K_GATE_POS_VEL] = float(chi2.ppf(config.gate_probability, 6))
@@ -219,13 +318,13 @@ def _rec(params: FloatArray, st: FloatArray, age: int) -> int:
 def _predict_axis(st: FloatArray, ax: int, dt: float, a: float, qa: float, qb: float) -> None:
     """x <- F x + B a, P <- F P F' + Q for axis ``ax`` over ``dt`` (axis_model, written out)."""
     xo = E_X + N_AX * ax
-    po = E_P + 9 * ax
+    po = E_P + N_COV * ax
     h = 0.5 * dt * dt
     p, v, b = st[xo + I_P], st[xo + I_V], st[xo + I_B]
     st[xo + I_P] = p + dt * v - h * b + h * a
     st[xo + I_V] = v - dt * b + dt * a
-    p00, p01, p02 = st[po + 0], st[po + 1], st[po + 2]
-    p11, p12, p22 = st[po + 4], st[po + 5], st[po + 8]
+    p00, p01, p02 = st[po + COV_PP], st[po + COV_PV], st[po + COV_PB]
+    p11, p12, p22 = st[po + COV_VV], st[po + COV_VB], st[po + COV_BB]
     # A = F P (rows), then F P F'
     a00 = p00 + dt * p01 - h * p02
     a01 = p01 + dt * p11 - h * p12
@@ -246,16 +345,16 @@ def _predict_axis(st: FloatArray, ax: int, dt: float, a: float, qa: float, qb: f
     n11 += qa * dt + qb * d3 / 3.0
     n12 += -qb * d2 / 2.0
     n22 += qb * dt
-    st[po + 0], st[po + 1], st[po + 2] = n00, n01, n02
-    st[po + 3], st[po + 4], st[po + 5] = n01, n11, n12
-    st[po + 6], st[po + 7], st[po + 8] = n02, n12, n22
+    st[po + COV_PP], st[po + COV_PV], st[po + COV_PB] = n00, n01, n02
+    st[po + COV_VP], st[po + COV_VV], st[po + COV_VB] = n01, n11, n12
+    st[po + COV_BP], st[po + COV_BV], st[po + COV_BB] = n02, n12, n22
 
 
 @njit
 def _propagate(params: FloatArray, st: FloatArray, rec: int, dt: float) -> None:
     if dt <= 0.0:
         return
-    for ax in range(3):
+    for ax in range(N_AXES):
         _predict_axis(st, ax, dt, st[rec + R_A + ax], st[rec + R_QA + ax], params[K_QB])
 
 
@@ -266,17 +365,17 @@ def _innovation(
     """Innovation of axis ``ax`` and its covariance into ``out`` = (y_p, y_v, S_pp, S_pv, S_vv);
     returns the normalised innovation squared y' S^-1 y."""
     xo = E_X + N_AX * ax
-    po = E_P + 9 * ax
+    po = E_P + N_COV * ax
     yp = zp - st[xo + I_P]
-    spp = st[po + 0] + rp
-    out[0], out[2] = yp, spp
+    spp = st[po + COV_PP] + rp
+    out[_IN_YP], out[_IN_SPP] = yp, spp
     if not use_vel:
-        out[1], out[3], out[4] = math.nan, math.nan, math.nan
+        out[_IN_YV], out[_IN_SPV], out[_IN_SVV] = math.nan, math.nan, math.nan
         return float(yp * yp / spp)
     yv = zv - st[xo + I_V]
-    spv = st[po + 1]
-    svv = st[po + 4] + rv
-    out[1], out[3], out[4] = yv, spv, svv
+    spv = st[po + COV_PV]
+    svv = st[po + COV_VV] + rv
+    out[_IN_YV], out[_IN_SPV], out[_IN_SVV] = yv, spv, svv
     det = spp * svv - spv * spv
     return float((svv * yp * yp - 2.0 * spv * yp * yv + spp * yv * yv) / det)
 
@@ -286,11 +385,11 @@ def _correct_axis(st: FloatArray, ax: int, zp: float, zv: float, rp: float, rv: 
     """Kalman update of axis ``ax`` with H = [1 0 0] (position) or [[1 0 0], [0 1 0]] (and
     velocity); Joseph form P = (I - K H) P (I - K H)' + K R K'."""
     xo = E_X + N_AX * ax
-    po = E_P + 9 * ax
+    po = E_P + N_COV * ax
     p = np.empty((3, 3))
     for i in range(3):
         for j in range(3):
-            p[i, j] = st[po + 3 * i + j]
+            p[i, j] = st[po + N_AX * i + j]
     # gain K = P H' S^-1 (3 x 2; column 1 unused without velocity)
     k = np.zeros((3, 2))
     yp = zp - st[xo + I_P]
@@ -322,8 +421,8 @@ def _correct_axis(st: FloatArray, ax: int, zp: float, zv: float, rp: float, rv: 
             v = k[i, 0] * rp * k[j, 0] + k[i, 1] * rv * k[j, 1]
             for m in range(3):
                 v += ap[i, m] * a[j, m]
-            st[po + 3 * i + j] = v
-            st[po + 3 * j + i] = v
+            st[po + N_AX * i + j] = v
+            st[po + N_AX * j + i] = v
 
 
 @njit
@@ -331,18 +430,18 @@ def _reset_axis(st: FloatArray, ax: int, zp: float, zv: float, rp: float, rv: fl
     """Position (and velocity) of axis ``ax`` set to the fix, with the fix's variance and no
     correlation to the rest; the bias and its variance are kept."""
     xo = E_X + N_AX * ax
-    po = E_P + 9 * ax
+    po = E_P + N_COV * ax
     st[xo + I_P] = zp
     n = 2 if use_vel else 1
     if use_vel:
         st[xo + I_V] = zv
     for i in range(n):
         for j in range(3):
-            st[po + 3 * i + j] = 0.0
-            st[po + 3 * j + i] = 0.0
-    st[po + 0] = rp
+            st[po + N_AX * i + j] = 0.0
+            st[po + N_AX * j + i] = 0.0
+    st[po + COV_PP] = rp
     if use_vel:
-        st[po + 4] = rv
+        st[po + COV_VV] = rv
 
 
 @njit
@@ -353,14 +452,14 @@ def _apply_gps(
     and logged; returns the flag it ends with (accepted, reset, or none if rejected)."""
     use_vel = _finite3(vel)
     if flag == M_PENDING:
-        buf = np.empty(5)
+        buf = np.empty(_N_INNOV)
         nis = 0.0
-        for ax in range(3):
+        for ax in range(N_AXES):
             nis += _innovation(
                 st, ax, pos[ax], vel[ax], params[K_R_POS + ax], params[K_R_VEL + ax], use_vel, buf
             )
-            st[E_INNOV_POS + ax], st[E_INNOV_VEL + ax] = buf[0], buf[1]
-            st[E_S_POS + ax], st[E_S_PV + ax], st[E_S_VEL + ax] = buf[2], buf[3], buf[4]
+            st[E_INNOV_POS + ax], st[E_INNOV_VEL + ax] = buf[_IN_YP], buf[_IN_YV]
+            st[E_S_POS + ax], st[E_S_PV + ax], st[E_S_VEL + ax] = buf[_IN_SPP], buf[_IN_SPV], buf[_IN_SVV]
         st[E_NIS] = nis
         st[E_T_INNOV] = t_fix
         gate = params[K_GATE_POS_VEL] if use_vel else params[K_GATE_POS]
@@ -377,7 +476,7 @@ def _apply_gps(
             st[E_N_CONSEC] += 1.0
             return M_NONE
         st[E_T_FIX] = max(st[E_T_FIX], t_fix)
-    for ax in range(3):
+    for ax in range(N_AXES):
         rp, rv = params[K_R_POS + ax], params[K_R_VEL + ax]
         if flag == M_RESET:
             _reset_axis(st, ax, pos[ax], vel[ax], rp, rv, use_vel)
@@ -389,9 +488,9 @@ def _apply_gps(
 @njit
 def _apply_baro(params: FloatArray, st: FloatArray, flag: float, z: float) -> float:
     if flag == M_PENDING:
-        buf = np.empty(5)
+        buf = np.empty(_N_INNOV)
         nis = _innovation(st, AX_U, z, 0.0, params[K_R_BARO], 0.0, False, buf)
-        st[E_BARO_INNOV], st[E_BARO_S], st[E_BARO_NIS] = buf[0], buf[2], nis
+        st[E_BARO_INNOV], st[E_BARO_S], st[E_BARO_NIS] = buf[_IN_YP], buf[_IN_SPP], nis
         if nis > params[K_GATE_BARO]:
             st[E_N_BARO_REJECT] += 1.0
             return M_NONE
@@ -410,11 +509,11 @@ def _replay(params: FloatArray, st: FloatArray, age_from: int) -> float:
     for age in range(age_from, -1, -1):
         rec = _rec(params, st, age)
         if age == age_from:
-            st[E_X : E_X + 9] = st[rec + R_X0 : rec + R_X0 + 9]
-            st[E_P : E_P + 27] = st[rec + R_P0 : rec + R_P0 + 27]
+            st[E_X : E_X + N_FX] = st[rec + R_X0 : rec + R_X0 + N_FX]
+            st[E_P : E_P + N_FP] = st[rec + R_P0 : rec + R_P0 + N_FP]
         else:
-            st[rec + R_X0 : rec + R_X0 + 9] = st[E_X : E_X + 9]
-            st[rec + R_P0 : rec + R_P0 + 27] = st[E_P : E_P + 27]
+            st[rec + R_X0 : rec + R_X0 + N_FX] = st[E_X : E_X + N_FX]
+            st[rec + R_P0 : rec + R_P0 + N_FP] = st[E_P : E_P + N_FP]
         gps_on = st[rec + R_GPS_FLAG] != M_NONE
         baro_on = st[rec + R_BARO_FLAG] != M_NONE
         t_g, t_b = st[rec + R_GPS_TAU], st[rec + R_BARO_TAU]
@@ -429,8 +528,8 @@ def _replay(params: FloatArray, st: FloatArray, age_from: int) -> float:
             t_meas = st[rec + R_T0] + tau
             if do_gps:
                 old = st[rec + R_GPS_FLAG]
-                pos = st[rec + R_GPS_POS : rec + R_GPS_POS + 3]
-                vel = st[rec + R_GPS_VEL : rec + R_GPS_VEL + 3]
+                pos = st[rec + R_GPS_POS : rec + R_GPS_POS + N_AXES]
+                vel = st[rec + R_GPS_VEL : rec + R_GPS_VEL + N_AXES]
                 new = _apply_gps(params, st, old, t_meas, pos, vel)
                 st[rec + R_GPS_FLAG] = new
                 gps_on = False
@@ -471,28 +570,28 @@ def est_init(params: FloatArray, st: FloatArray, x0: FloatArray) -> None:
     configured initial covariance; counters cleared; time unset until the first predict."""
     st[:] = 0.0
     st[E_T] = math.nan
-    r = rot_body_to_earth(x0[6], x0[7], x0[8])
-    for ax in range(3):
+    r = rot_body_to_earth(x0[PHI], x0[THETA], x0[PSI])
+    for ax in range(N_AXES):
         xo = E_X + N_AX * ax
-        po = E_P + 9 * ax
-        st[xo + I_P] = x0[ax]
-        st[xo + I_V] = r[ax, 0] * x0[3] + r[ax, 1] * x0[4] + r[ax, 2] * x0[5]
+        po = E_P + N_COV * ax
+        st[xo + I_P] = x0[X_N + ax]
+        st[xo + I_V] = r[ax, 0] * x0[U_F] + r[ax, 1] * x0[V_L] + r[ax, 2] * x0[W_U]
         st[xo + I_B] = 0.0
-        st[po + 0] = params[K_P0_POS]
-        st[po + 4] = params[K_P0_VEL]
-        st[po + 8] = params[K_P0_BIAS]
-    st[E_ATT : E_ATT + 3] = x0[6:9]
-    st[E_RATE : E_RATE + 3] = x0[9:12]
-    for i in range(3):
-        st[E_QA + i] = params[K_QA]
+        st[po + COV_PP] = params[K_P0_POS]
+        st[po + COV_VV] = params[K_P0_VEL]
+        st[po + COV_BB] = params[K_P0_BIAS]
+    st[E_ATT : E_ATT + 3] = x0[EULER]
+    st[E_RATE : E_RATE + 3] = x0[OMEGA]
+    for ax in range(N_AXES):
+        st[E_QA + ax] = params[K_QA]
     st[E_NIS] = math.nan
     st[E_T_INNOV] = math.nan
-    for i in range(3):
-        st[E_INNOV_POS + i] = math.nan
-        st[E_INNOV_VEL + i] = math.nan
-        st[E_S_POS + i] = math.nan
-        st[E_S_VEL + i] = math.nan
-        st[E_S_PV + i] = math.nan
+    for ax in range(N_AXES):
+        st[E_INNOV_POS + ax] = math.nan
+        st[E_INNOV_VEL + ax] = math.nan
+        st[E_S_POS + ax] = math.nan
+        st[E_S_VEL + ax] = math.nan
+        st[E_S_PV + ax] = math.nan
     st[E_BARO_INNOV], st[E_BARO_S], st[E_BARO_NIS] = math.nan, math.nan, math.nan
     st[E_HEAD] = 0.0
     st[E_COUNT] = 0.0
@@ -561,10 +660,10 @@ def est_predict(
     rec = E_HIST + head * N_REC
     st[rec + R_T0] = st[E_T]
     st[rec + R_DT] = dt
-    st[rec + R_A : rec + R_A + 3] = st[E_A : E_A + 3]
-    st[rec + R_QA : rec + R_QA + 3] = st[E_QA : E_QA + 3]
-    st[rec + R_X0 : rec + R_X0 + 9] = st[E_X : E_X + 9]
-    st[rec + R_P0 : rec + R_P0 + 27] = st[E_P : E_P + 27]
+    st[rec + R_A : rec + R_A + N_AXES] = st[E_A : E_A + N_AXES]
+    st[rec + R_QA : rec + R_QA + N_AXES] = st[E_QA : E_QA + N_AXES]
+    st[rec + R_X0 : rec + R_X0 + N_FX] = st[E_X : E_X + N_FX]
+    st[rec + R_P0 : rec + R_P0 + N_FP] = st[E_P : E_P + N_FP]
     st[rec + R_GPS_FLAG] = M_NONE
     st[rec + R_BARO_FLAG] = M_NONE
     _propagate(params, st, rec, dt)
@@ -632,14 +731,14 @@ def est_output(st: FloatArray, x_out: FloatArray) -> None:
     """The 12-state estimate (heli_common.state layout): body FLU velocity = R' v_E."""
     r = rot_body_to_earth(st[E_ATT], st[E_ATT + 1], st[E_ATT + 2])
     for i in range(3):
-        x_out[i] = st[E_X + N_AX * i + I_P]
+        x_out[X_N + i] = st[E_X + N_AX * i + I_P]
     for i in range(3):
-        x_out[3 + i] = (
+        x_out[U_F + i] = (
             r[0, i] * st[E_X + I_V] + r[1, i] * st[E_X + N_AX + I_V] + r[2, i] * st[E_X + 2 * N_AX + I_V]
         )
     for i in range(3):
-        x_out[6 + i] = st[E_ATT + i]
-        x_out[9 + i] = st[E_RATE + i]
+        x_out[PHI + i] = st[E_ATT + i]
+        x_out[P_X + i] = st[E_RATE + i]
 
 
 @njit
@@ -669,26 +768,42 @@ def est_tick(
 #: velocity (earth NWU), its acceleration bias, the GPS status of the tick (NO_FIX, ACCEPTED,
 #: REJECTED, RESET, ...), and for a tick with a fix its NIS and position innovation at the
 #: fix's validity time; the time since the last accepted fix
-EST_LOG_COLUMNS = (
-    "sd_pos_n", "sd_pos_w", "sd_pos_u", "sd_vel_n", "sd_vel_w", "sd_vel_u",
-    "bias_n", "bias_w", "bias_u", "gps_status", "nis", "innov_n", "innov_w", "innov_u", "since_fix_s",
+EST_LOG = Layout(
+    "estimator log",
+    ("sd_pos", N_AXES), ("sd_vel", N_AXES), ("bias", N_AXES), ("gps_status", 1), ("nis", 1),
+    ("innov", N_AXES), ("since_fix_s", 1),
 )  # fmt: skip
-N_EST_LOG = len(EST_LOG_COLUMNS)
+L_SD_POS = EST_LOG.offset("sd_pos")
+L_SD_VEL = EST_LOG.offset("sd_vel")
+L_BIAS = EST_LOG.offset("bias")
+L_GPS_STATUS = EST_LOG.offset("gps_status")
+L_NIS = EST_LOG.offset("nis")
+L_INNOV = EST_LOG.offset("innov")
+L_SINCE_FIX = EST_LOG.offset("since_fix_s")
+N_EST_LOG = EST_LOG.size
+_AXIS_SUFFIX = ("n", "w", "u")
+#: est.csv's column names: a block's name, suffixed with the axis where it has one per axis
+EST_LOG_COLUMNS = tuple(
+    name if EST_LOG.size_of(name) == 1 else f"{name}_{_AXIS_SUFFIX[i]}"
+    for name in EST_LOG.names
+    for i in range(EST_LOG.size_of(name))
+)
 
 
 @njit
 def log_tick(st: FloatArray, gps_status: int, row: FloatArray) -> None:
     """One row of :data:`EST_LOG_COLUMNS` for the tick just estimated."""
-    for a in range(3):
-        row[a] = math.sqrt(max(st[E_P + 9 * a], 0.0))
-        row[3 + a] = math.sqrt(max(st[E_P + 9 * a + 4], 0.0))
-        row[6 + a] = st[E_X + N_AX * a + I_B]
-    row[9] = gps_status
+    for a in range(N_AXES):
+        po = E_P + N_COV * a
+        row[L_SD_POS + a] = math.sqrt(max(st[po + COV_PP], 0.0))
+        row[L_SD_VEL + a] = math.sqrt(max(st[po + COV_VV], 0.0))
+        row[L_BIAS + a] = st[E_X + N_AX * a + I_B]
+    row[L_GPS_STATUS] = gps_status
     fix = gps_status != NO_FIX
-    row[10] = st[E_NIS] if fix else math.nan
-    for a in range(3):
-        row[11 + a] = st[E_INNOV_POS + a] if fix else math.nan
-    row[14] = st[E_T] - st[E_T_FIX]
+    row[L_NIS] = st[E_NIS] if fix else math.nan
+    for a in range(N_AXES):
+        row[L_INNOV + a] = st[E_INNOV_POS + a] if fix else math.nan
+    row[L_SINCE_FIX] = st[E_T] - st[E_T_FIX]
 
 
 # ------------------------------------------------------------------ the Python wrapper
@@ -804,38 +919,38 @@ class Estimator:
 
     @property
     def pos_nwu_m(self) -> FloatArray:
-        return self.state[E_X + I_P : E_X + 9 : N_AX].copy()
+        return self.state[E_X + I_P : E_X + N_FX : N_AX].copy()
 
     @property
     def vel_nwu_m_s(self) -> FloatArray:
-        return self.state[E_X + I_V : E_X + 9 : N_AX].copy()
+        return self.state[E_X + I_V : E_X + N_FX : N_AX].copy()
 
     @property
     def accel_bias_nwu(self) -> FloatArray:
         """Earth-frame acceleration bias b (the model uses R f + g_E - b)."""
-        return self.state[E_X + I_B : E_X + 9 : N_AX].copy()
+        return self.state[E_X + I_B : E_X + N_FX : N_AX].copy()
 
     @property
     def covariance(self) -> FloatArray:
         """(3, 3, 3): per axis (N, W, U) the covariance of [p, v, b]."""
-        return self.state[E_P : E_P + 27].reshape(3, 3, 3).copy()
+        return self.state[E_P : E_P + N_FP].reshape(N_AXES, N_AX, N_AX).copy()
 
     @property
     def pos_vel_var(self) -> FloatArray:
         """(6,): variances of position N, W, U [m^2] then velocity N, W, U [m^2/s^2] (earth)."""
-        p = self.state[E_P : E_P + 27].reshape(3, 9)
-        return np.concatenate([p[:, 0], p[:, 4]])
+        p = self.state[E_P : E_P + N_FP].reshape(N_AXES, N_COV)
+        return np.concatenate([p[:, COV_PP], p[:, COV_VV]])
 
     @property
     def innovations(self) -> Innovations:
         s = self.state
         return Innovations(
             t_s=float(s[E_T_INNOV]),
-            pos_m=s[E_INNOV_POS : E_INNOV_POS + 3].copy(),
-            vel_m_s=s[E_INNOV_VEL : E_INNOV_VEL + 3].copy(),
-            s_pos=s[E_S_POS : E_S_POS + 3].copy(),
-            s_vel=s[E_S_VEL : E_S_VEL + 3].copy(),
-            s_pos_vel=s[E_S_PV : E_S_PV + 3].copy(),
+            pos_m=s[E_INNOV_POS : E_INNOV_POS + N_AXES].copy(),
+            vel_m_s=s[E_INNOV_VEL : E_INNOV_VEL + N_AXES].copy(),
+            s_pos=s[E_S_POS : E_S_POS + N_AXES].copy(),
+            s_vel=s[E_S_VEL : E_S_VEL + N_AXES].copy(),
+            s_pos_vel=s[E_S_PV : E_S_PV + N_AXES].copy(),
             nis=float(s[E_NIS]),
             baro_m=float(s[E_BARO_INNOV]),
             s_baro=float(s[E_BARO_S]),

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from autopilot.reference import REF_DERIVATIVES, REF_POS, REF_VEL, position_reference
+from autopilot.reference import N_REF, REF_DERIVATIVES, REF_POS, REF_VEL, position_reference
 from autopilot.trajectory.base import Trajectory
 from heli_common.state import POS, VEL, FloatArray
 
@@ -64,7 +64,7 @@ class Brake:
         t = min(max(tau_s, 0.0), self.duration_s)
         speed = float(np.linalg.norm(self.vel_nwu_m_s))
         dec = self.vel_nwu_m_s * (self.acc_m_s2 / speed) if speed > 0.0 else np.zeros(3)
-        ref = np.zeros(9)
+        ref = np.zeros(N_REF)
         ref[REF_POS] = self.pos_nwu_m + self.vel_nwu_m_s * t - 0.5 * dec * t * t
         if tau_s < self.duration_s:
             ref[REF_DERIVATIVES] = np.concatenate([self.vel_nwu_m_s - dec * t, -dec])

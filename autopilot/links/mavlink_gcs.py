@@ -28,6 +28,7 @@ from autopilot.flight_log import heartbeat
 from autopilot.links.mavlink_modes import COMMAND, REPORTED
 from autopilot.mission.server import MissionServer
 from autopilot.params_table import ParamTable
+from autopilot.reference import N_REF, REF_ACC, REF_POS, REF_VEL
 from autopilot.runner import Euler
 from autopilot.trajectory.waypoints import FlightLimits
 from autopilot.trajectory_codec import check_mission
@@ -466,18 +467,18 @@ class GcsService:
             self.refused += 1
             return
         mask = msg.type_mask
-        ref = np.full(9, np.nan)
+        ref = np.full(N_REF, np.nan)
         groups = (
-            (0, (msg.x, msg.y, msg.z), m2.POSITION_TARGET_TYPEMASK_X_IGNORE),
-            (3, (msg.vx, msg.vy, msg.vz), m2.POSITION_TARGET_TYPEMASK_VX_IGNORE),
-            (6, (msg.afx, msg.afy, msg.afz), m2.POSITION_TARGET_TYPEMASK_AX_IGNORE),
+            (REF_POS, (msg.x, msg.y, msg.z), m2.POSITION_TARGET_TYPEMASK_X_IGNORE),
+            (REF_VEL, (msg.vx, msg.vy, msg.vz), m2.POSITION_TARGET_TYPEMASK_VX_IGNORE),
+            (REF_ACC, (msg.afx, msg.afy, msg.afz), m2.POSITION_TARGET_TYPEMASK_AX_IGNORE),
         )
-        for off, vals, ignore_bit in groups:
+        for part, vals, ignore_bit in groups:
             if not mask & ignore_bit:
                 if not all(math.isfinite(v) for v in vals):
                     self.refused += 1
                     return
-                ref[off : off + 3] = frames.ned_to_nwu(vals)
+                ref[part] = frames.ned_to_nwu(vals)
         self._pending.append(_Pending(c.Setpoint(ref)))
 
     # -- commands -------------------------------------------------------------------------

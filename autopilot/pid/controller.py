@@ -34,17 +34,28 @@ from autopilot.tlc.inversion import force_to_thrust_attitude, limit_tilt, yaw_ra
 from heli_common.airframe import Airframe, PlantConstants
 from heli_common.jit import njit
 from heli_common.kinematics import cross, euler_rate_matrix, rot_body_to_earth, wrap_pi
-from heli_common.state import EULER, OMEGA, POS, VEL, FloatArray
+from heli_common.layout import Layout
+from heli_common.state import EULER, N_PITCH, OMEGA, POS, VEL, FloatArray
 
 # controller state layout
-P_I_VEL = 0  # (3) velocity-error integral, earth NWU
-P_I_RATE = 3  # (3) body-rate-error integral
-P_D_RATE = 6  # (3) filtered derivative of the measured body rates
-P_LAST_RATE = 9  # (3) the previous measured body rates
-P_PSI_C = 12  # yaw command
-P_STARTED = 13
-P_LAST_U = 14  # (4) last valid output
-N_PID_STATE = 18
+PID_STATE = Layout(
+    "PID state",
+    ("i_vel", 3),  # velocity-error integral, earth NWU
+    ("i_rate", 3),  # body-rate-error integral
+    ("d_rate", 3),  # filtered derivative of the measured body rates
+    ("last_rate", 3),  # the previous measured body rates
+    ("psi_c", 1),  # yaw command
+    ("started", 1),  # 0 until the first update initialised the filters
+    ("last_u", N_PITCH),  # last valid output
+)
+P_I_VEL = PID_STATE.offset("i_vel")
+P_I_RATE = PID_STATE.offset("i_rate")
+P_D_RATE = PID_STATE.offset("d_rate")
+P_LAST_RATE = PID_STATE.offset("last_rate")
+P_PSI_C = PID_STATE.offset("psi_c")
+P_STARTED = PID_STATE.offset("started")
+P_LAST_U = PID_STATE.offset("last_u")
+N_PID_STATE = PID_STATE.size
 
 
 class PIDConstants(NamedTuple):
@@ -120,7 +131,7 @@ def pid_kernel(
     the command is finite."""
     c = k.plant
     mg = c.mass_kg * c.gravity_m_s2
-    if not (all_finite(x) and all_finite(ref[0:3])):
+    if not (all_finite(x) and all_finite(ref[REF_POS : REF_POS + 3])):
         return refuse(st, P_LAST_U, out, diag, BAD_INPUT)
     s = st.copy()
     dt = k.dt_s

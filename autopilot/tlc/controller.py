@@ -170,7 +170,7 @@ def tlc_kernel(
     """
     c = k.plant
     mg = c.mass_kg * c.gravity_m_s2
-    if not (all_finite(x) and all_finite(ref[0:3])):
+    if not (all_finite(x) and all_finite(ref[REF_POS : REF_POS + 3])):
         return refuse(st, S_LAST_U, out, diag, BAD_INPUT)
     s = st.copy()
     dt = k.dt_s

@@ -34,10 +34,12 @@ class StateFields(NamedTuple):
 
 def state_fields(x: FloatArray) -> StateFields:
     f = frames.state_to_ned_fields(x).tolist()
-    pos_ned, vel_ned = (f[10], f[11], f[12]), (f[13], f[14], f[15])
+    e, r, q = frames.NF_EULER, frames.NF_RATES, frames.NF_QUAT
+    pos_ned = (f[frames.NF_POS], f[frames.NF_POS + 1], f[frames.NF_POS + 2])
+    vel_ned = (f[frames.NF_VEL], f[frames.NF_VEL + 1], f[frames.NF_VEL + 2])
     alt_mm, vel_cm = hil_alt_vel(pos_ned, vel_ned)
-    return StateFields((f[0], f[1], f[2], f[3], f[4], f[5]), (f[6], f[7], f[8], f[9]), alt_mm,
-                       vel_cm, pos_ned, vel_ned)  # fmt: skip
+    att = (f[e], f[e + 1], f[e + 2], f[r], f[r + 1], f[r + 2])
+    return StateFields(att, (f[q], f[q + 1], f[q + 2], f[q + 3]), alt_mm, vel_cm, pos_ned, vel_ned)
 
 
 def state_messages(t_us: int, x: FloatArray) -> list[Message]:

@@ -95,6 +95,7 @@ import numpy as np
 
 from heli_common.jit import njit
 from heli_common.kinematics import cross, rot_body_to_earth
+from heli_common.layout import Layout
 from heli_common.measurements import (  # the out layout and mask bits are the contract's
     N_OUT,
     NEW_ATT,
@@ -134,80 +135,116 @@ STREAM_BARO = STREAM_SENSOR_BASE + 9
 
 
 # --- params[SNP_*] ---------------------------------------------------------------------------
-SNP_SEED = 0
-SNP_TOL_S = 1
-SNP_GRAVITY = 2
-SNP_IMU_RATE_HZ = 3
-SNP_GYRO_SIGMA = 4
-SNP_ACCEL_SIGMA = 5
-SNP_GYRO_BIAS = 6  # 3
-SNP_ACCEL_BIAS = 9  # 3
-SNP_GYRO_WALK = 12
-SNP_ACCEL_WALK = 13
-SNP_IMU_FREEZE = 14
-SNP_IMU_FAULT_T = 15
-SNP_GYRO_STEP = 16  # 3
-SNP_ACCEL_STEP = 19  # 3
-SNP_GPS_RATE_HZ = 22
-SNP_GPS_LAG_S = 23
-SNP_GPS_SIGMA_H = 24
-SNP_GPS_SIGMA_V = 25
-SNP_GPS_WANDER_H = 26
-SNP_GPS_WANDER_V = 27
-SNP_GPS_TAU_S = 28
-SNP_GPS_VEL_SIGMA = 29
-SNP_GPS_DISABLED = 30
-SNP_GPS_FREEZE = 31
-SNP_GPS_FAULT_T = 32
-SNP_GPS_STEP = 33  # 3
-SNP_GPS_QUEUE = 36
-SNP_GPS_QUEUE_CAP = 37
-SNP_ATT_RATE_HZ = 38
-SNP_ATT_LAG_S = 39
-SNP_ATT_SIGMA = 40  # 3
-SNP_ATT_BIAS = 43  # 3
-SNP_ATT_FREEZE = 46
-SNP_ATT_FAULT_T = 47
-SNP_ATT_STEP = 48  # 3
-SNP_ATT_QUEUE = 51
-SNP_ATT_QUEUE_CAP = 52
-SNP_BARO_RATE_HZ = 53
-SNP_BARO_SIGMA = 54
-SNP_BARO_DRIFT = 55
-SNP_BARO_FREEZE = 56
-SNP_BARO_FAULT_T = 57
-SNP_BARO_STEP = 58
-N_SNP = 59
+SENSOR_PARAMS = Layout(
+    "sensor parameters",
+    ("seed", 1), ("tol_s", 1), ("gravity", 1),
+    # IMU
+    ("imu_rate_hz", 1), ("gyro_sigma", 1), ("accel_sigma", 1), ("gyro_bias", 3), ("accel_bias", 3),
+    ("gyro_walk", 1), ("accel_walk", 1), ("imu_freeze", 1), ("imu_fault_t", 1), ("gyro_step", 3),
+    ("accel_step", 3),
+    # GPS
+    ("gps_rate_hz", 1), ("gps_lag_s", 1), ("gps_sigma_h", 1), ("gps_sigma_v", 1), ("gps_wander_h", 1),
+    ("gps_wander_v", 1), ("gps_tau_s", 1), ("gps_vel_sigma", 1), ("gps_disabled", 1), ("gps_freeze", 1),
+    ("gps_fault_t", 1), ("gps_step", 3), ("gps_queue", 1), ("gps_queue_cap", 1),
+    # attitude source
+    ("att_rate_hz", 1), ("att_lag_s", 1), ("att_sigma", 3), ("att_bias", 3), ("att_freeze", 1),
+    ("att_fault_t", 1), ("att_step", 3), ("att_queue", 1), ("att_queue_cap", 1),
+    # barometer
+    ("baro_rate_hz", 1), ("baro_sigma", 1), ("baro_drift", 1), ("baro_freeze", 1), ("baro_fault_t", 1),
+    ("baro_step", 1),
+)  # fmt: skip
+SNP_SEED = SENSOR_PARAMS.offset("seed")
+SNP_TOL_S = SENSOR_PARAMS.offset("tol_s")
+SNP_GRAVITY = SENSOR_PARAMS.offset("gravity")
+SNP_IMU_RATE_HZ = SENSOR_PARAMS.offset("imu_rate_hz")
+SNP_GYRO_SIGMA = SENSOR_PARAMS.offset("gyro_sigma")
+SNP_ACCEL_SIGMA = SENSOR_PARAMS.offset("accel_sigma")
+SNP_GYRO_BIAS = SENSOR_PARAMS.offset("gyro_bias")
+SNP_ACCEL_BIAS = SENSOR_PARAMS.offset("accel_bias")
+SNP_GYRO_WALK = SENSOR_PARAMS.offset("gyro_walk")
+SNP_ACCEL_WALK = SENSOR_PARAMS.offset("accel_walk")
+SNP_IMU_FREEZE = SENSOR_PARAMS.offset("imu_freeze")
+SNP_IMU_FAULT_T = SENSOR_PARAMS.offset("imu_fault_t")
+SNP_GYRO_STEP = SENSOR_PARAMS.offset("gyro_step")
+SNP_ACCEL_STEP = SENSOR_PARAMS.offset("accel_step")
+SNP_GPS_RATE_HZ = SENSOR_PARAMS.offset("gps_rate_hz")
+SNP_GPS_LAG_S = SENSOR_PARAMS.offset("gps_lag_s")
+SNP_GPS_SIGMA_H = SENSOR_PARAMS.offset("gps_sigma_h")
+SNP_GPS_SIGMA_V = SENSOR_PARAMS.offset("gps_sigma_v")
+SNP_GPS_WANDER_H = SENSOR_PARAMS.offset("gps_wander_h")
+SNP_GPS_WANDER_V = SENSOR_PARAMS.offset("gps_wander_v")
+SNP_GPS_TAU_S = SENSOR_PARAMS.offset("gps_tau_s")
+SNP_GPS_VEL_SIGMA = SENSOR_PARAMS.offset("gps_vel_sigma")
+SNP_GPS_DISABLED = SENSOR_PARAMS.offset("gps_disabled")
+SNP_GPS_FREEZE = SENSOR_PARAMS.offset("gps_freeze")
+SNP_GPS_FAULT_T = SENSOR_PARAMS.offset("gps_fault_t")
+SNP_GPS_STEP = SENSOR_PARAMS.offset("gps_step")
+SNP_GPS_QUEUE = SENSOR_PARAMS.offset("gps_queue")
+SNP_GPS_QUEUE_CAP = SENSOR_PARAMS.offset("gps_queue_cap")
+SNP_ATT_RATE_HZ = SENSOR_PARAMS.offset("att_rate_hz")
+SNP_ATT_LAG_S = SENSOR_PARAMS.offset("att_lag_s")
+SNP_ATT_SIGMA = SENSOR_PARAMS.offset("att_sigma")
+SNP_ATT_BIAS = SENSOR_PARAMS.offset("att_bias")
+SNP_ATT_FREEZE = SENSOR_PARAMS.offset("att_freeze")
+SNP_ATT_FAULT_T = SENSOR_PARAMS.offset("att_fault_t")
+SNP_ATT_STEP = SENSOR_PARAMS.offset("att_step")
+SNP_ATT_QUEUE = SENSOR_PARAMS.offset("att_queue")
+SNP_ATT_QUEUE_CAP = SENSOR_PARAMS.offset("att_queue_cap")
+SNP_BARO_RATE_HZ = SENSOR_PARAMS.offset("baro_rate_hz")
+SNP_BARO_SIGMA = SENSOR_PARAMS.offset("baro_sigma")
+SNP_BARO_DRIFT = SENSOR_PARAMS.offset("baro_drift")
+SNP_BARO_FREEZE = SENSOR_PARAMS.offset("baro_freeze")
+SNP_BARO_FAULT_T = SENSOR_PARAMS.offset("baro_fault_t")
+SNP_BARO_STEP = SENSOR_PARAMS.offset("baro_step")
+N_SNP = SENSOR_PARAMS.size
 
 # --- state[SNS_*] ----------------------------------------------------------------------------
-SNS_IMU_NEXT = 0
-SNS_IMU_LAST_T = 1
-SNS_IMU_N = 2
-SNS_IMU_OUT = 3
-SNS_GYRO_WALK = 4  # 3
-SNS_ACCEL_WALK = 7  # 3
-SNS_GPS_NEXT = 10
-SNS_GPS_LAST_T = 11
-SNS_GPS_N = 12
-SNS_GPS_OUT = 13
-SNS_GPS_WANDER = 14  # 3
-SNS_GPS_WANDER_ON = 17
-SNS_GPS_HEAD = 18
-SNS_GPS_COUNT = 19
-SNS_ATT_NEXT = 20
-SNS_ATT_LAST_T = 21
-SNS_ATT_N = 22
-SNS_ATT_OUT = 23
-SNS_ATT_HEAD = 24
-SNS_ATT_COUNT = 25
-SNS_BARO_NEXT = 26
-SNS_BARO_LAST_T = 27
-SNS_BARO_N = 28
-SNS_BARO_OUT = 29
-SNS_BARO_DRIFT = 30
-N_SNS = 31  # the fixed part; the FIFOs follow
-GPS_REC = 7  # t_valid, pos 3, vel 3
-ATT_REC = 4  # t_valid, euler 3
+# the fixed part; the FIFOs follow (their offsets and slots in SNP_*_QUEUE, SNP_*_QUEUE_CAP)
+SENSOR_STATE = Layout(
+    "sensor state",
+    ("imu_next", 1), ("imu_last_t", 1), ("imu_n", 1), ("imu_out", 1), ("gyro_walk", 3), ("accel_walk", 3),
+    ("gps_next", 1), ("gps_last_t", 1), ("gps_n", 1), ("gps_out", 1), ("gps_wander", 3), ("gps_wander_on", 1),
+    ("gps_head", 1), ("gps_count", 1),
+    ("att_next", 1), ("att_last_t", 1), ("att_n", 1), ("att_out", 1), ("att_head", 1), ("att_count", 1),
+    ("baro_next", 1), ("baro_last_t", 1), ("baro_n", 1), ("baro_out", 1), ("baro_drift", 1),
+)  # fmt: skip
+SNS_IMU_NEXT = SENSOR_STATE.offset("imu_next")
+SNS_IMU_LAST_T = SENSOR_STATE.offset("imu_last_t")
+SNS_IMU_N = SENSOR_STATE.offset("imu_n")
+SNS_IMU_OUT = SENSOR_STATE.offset("imu_out")
+SNS_GYRO_WALK = SENSOR_STATE.offset("gyro_walk")
+SNS_ACCEL_WALK = SENSOR_STATE.offset("accel_walk")
+SNS_GPS_NEXT = SENSOR_STATE.offset("gps_next")
+SNS_GPS_LAST_T = SENSOR_STATE.offset("gps_last_t")
+SNS_GPS_N = SENSOR_STATE.offset("gps_n")
+SNS_GPS_OUT = SENSOR_STATE.offset("gps_out")
+SNS_GPS_WANDER = SENSOR_STATE.offset("gps_wander")
+SNS_GPS_WANDER_ON = SENSOR_STATE.offset("gps_wander_on")
+SNS_GPS_HEAD = SENSOR_STATE.offset("gps_head")
+SNS_GPS_COUNT = SENSOR_STATE.offset("gps_count")
+SNS_ATT_NEXT = SENSOR_STATE.offset("att_next")
+SNS_ATT_LAST_T = SENSOR_STATE.offset("att_last_t")
+SNS_ATT_N = SENSOR_STATE.offset("att_n")
+SNS_ATT_OUT = SENSOR_STATE.offset("att_out")
+SNS_ATT_HEAD = SENSOR_STATE.offset("att_head")
+SNS_ATT_COUNT = SENSOR_STATE.offset("att_count")
+SNS_BARO_NEXT = SENSOR_STATE.offset("baro_next")
+SNS_BARO_LAST_T = SENSOR_STATE.offset("baro_last_t")
+SNS_BARO_N = SENSOR_STATE.offset("baro_n")
+SNS_BARO_OUT = SENSOR_STATE.offset("baro_out")
+SNS_BARO_DRIFT = SENSOR_STATE.offset("baro_drift")
+N_SNS = SENSOR_STATE.size
+
+# one FIFO entry of each delayed sensor, relative to its slot's start
+GPS_RECORD = Layout("GPS FIFO entry", ("t_valid", 1), ("pos", 3), ("vel", 3))
+GR_T = GPS_RECORD.offset("t_valid")
+GR_POS = GPS_RECORD.offset("pos")
+GR_VEL = GPS_RECORD.offset("vel")
+GPS_REC = GPS_RECORD.size
+ATT_RECORD = Layout("attitude FIFO entry", ("t_valid", 1), ("euler", 3))
+AR_T = ATT_RECORD.offset("t_valid")
+AR_EULER = ATT_RECORD.offset("euler")
+ATT_REC = ATT_RECORD.size
 
 
 #: timing tolerance as a fraction of the plant step (absorbs a time accumulated by += dt)
@@ -319,15 +356,16 @@ def _push_slot(state: FloatArray, cap: int, i_head: int, i_count: int) -> int:
 
 @njit
 def _pop_ready(
-    state: FloatArray, base: int, cap: int, width: int, i_head: int, i_count: int, t: float, lag: float,
-    tol: float,
+    state: FloatArray, base: int, cap: int, width: int, i_t: int, i_head: int, i_count: int, t: float,
+    lag: float, tol: float,
 ) -> int:  # fmt: skip
-    """The slot of the newest entry due at ``t`` (``t_valid + lag <= t``), removing it and
-    any older one; -1 if none is due. The slot stays intact until the next push."""
+    """The slot of the newest entry due at ``t`` (``t_valid + lag <= t``, ``t_valid`` at offset
+    ``i_t`` of an entry), removing it and any older one; -1 if none is due. The slot stays
+    intact until the next push."""
     head = int(state[i_head])
     count = int(state[i_count])
     slot = -1
-    while count > 0 and state[base + head * width] + lag <= t + tol:
+    while count > 0 and state[base + head * width + i_t] + lag <= t + tol:
         slot = head
         head = (head + 1) % cap
         count -= 1
@@ -409,7 +447,7 @@ def _gps_sample(t: float, x: FloatArray, seed: int, p: FloatArray, s: FloatArray
     cap = int(p[SNP_GPS_QUEUE_CAP])
     slot = _push_slot(s, cap, SNS_GPS_HEAD, SNS_GPS_COUNT)
     base = int(p[SNP_GPS_QUEUE]) + slot * GPS_REC
-    s[base] = t
+    s[base + GR_T] = t
     fault = t >= p[SNP_GPS_FAULT_T]
     for i in range(3):
         wander = wv if i == 2 else wh
@@ -424,25 +462,26 @@ def _gps_sample(t: float, x: FloatArray, seed: int, p: FloatArray, s: FloatArray
         v = vel[i]
         if svel > 0.0:
             v += svel * wvel[i]
-        s[base + 1 + i] = pos
-        s[base + 4 + i] = v
+        s[base + GR_POS + i] = pos
+        s[base + GR_VEL + i] = v
 
 
 @njit
 def _gps_deliver(t: float, p: FloatArray, s: FloatArray, out: FloatArray) -> bool:
     cap = int(p[SNP_GPS_QUEUE_CAP])
     q0 = int(p[SNP_GPS_QUEUE])
-    slot = _pop_ready(s, q0, cap, GPS_REC, SNS_GPS_HEAD, SNS_GPS_COUNT, t, p[SNP_GPS_LAG_S], p[SNP_TOL_S])
+    slot = _pop_ready(s, q0, cap, GPS_REC, GR_T, SNS_GPS_HEAD, SNS_GPS_COUNT, t, p[SNP_GPS_LAG_S],
+                      p[SNP_TOL_S])  # fmt: skip
     if slot < 0 or p[SNP_GPS_DISABLED] != 0.0:
         return False
     base = q0 + slot * GPS_REC
-    t_valid = s[base]
+    t_valid = s[base + GR_T]
     out[OUT_GPS_T] = t_valid
     frozen = p[SNP_GPS_FREEZE] != 0.0 and t_valid >= p[SNP_GPS_FAULT_T] and s[SNS_GPS_OUT] > 0.0
     if not frozen:
         for i in range(3):
-            out[OUT_GPS_POS + i] = s[base + 1 + i]
-            out[OUT_GPS_VEL + i] = s[base + 4 + i]
+            out[OUT_GPS_POS + i] = s[base + GR_POS + i]
+            out[OUT_GPS_VEL + i] = s[base + GR_VEL + i]
     s[SNS_GPS_OUT] += 1.0
     return True
 
@@ -457,7 +496,7 @@ def _att_sample(t: float, x: FloatArray, seed: int, p: FloatArray, s: FloatArray
     cap = int(p[SNP_ATT_QUEUE_CAP])
     slot = _push_slot(s, cap, SNS_ATT_HEAD, SNS_ATT_COUNT)
     base = int(p[SNP_ATT_QUEUE]) + slot * ATT_REC
-    s[base] = t
+    s[base + AR_T] = t
     fault = t >= p[SNP_ATT_FAULT_T]
     for i in range(3):
         e = x[PHI + i] + p[SNP_ATT_BIAS + i]
@@ -465,23 +504,24 @@ def _att_sample(t: float, x: FloatArray, seed: int, p: FloatArray, s: FloatArray
             e += p[SNP_ATT_SIGMA + i] * w[i]
         if fault:
             e += p[SNP_ATT_STEP + i]
-        s[base + 1 + i] = e
+        s[base + AR_EULER + i] = e
 
 
 @njit
 def _att_deliver(t: float, p: FloatArray, s: FloatArray, out: FloatArray) -> bool:
     cap = int(p[SNP_ATT_QUEUE_CAP])
     q0 = int(p[SNP_ATT_QUEUE])
-    slot = _pop_ready(s, q0, cap, ATT_REC, SNS_ATT_HEAD, SNS_ATT_COUNT, t, p[SNP_ATT_LAG_S], p[SNP_TOL_S])
+    slot = _pop_ready(s, q0, cap, ATT_REC, AR_T, SNS_ATT_HEAD, SNS_ATT_COUNT, t, p[SNP_ATT_LAG_S],
+                      p[SNP_TOL_S])  # fmt: skip
     if slot < 0:
         return False
     base = q0 + slot * ATT_REC
-    t_valid = s[base]
+    t_valid = s[base + AR_T]
     out[OUT_ATT_T] = t_valid
     frozen = p[SNP_ATT_FREEZE] != 0.0 and t_valid >= p[SNP_ATT_FAULT_T] and s[SNS_ATT_OUT] > 0.0
     if not frozen:
         for i in range(3):
-            out[OUT_ATT + i] = s[base + 1 + i]
+            out[OUT_ATT + i] = s[base + AR_EULER + i]
     s[SNS_ATT_OUT] += 1.0
     return True
 

@@ -31,6 +31,7 @@ from heli_common.airframe import Airframe, PlantConstants
 from heli_common.gusts import gust_factor, mean_wind_nwu
 from heli_common.jit import njit
 from heli_common.kinematics import rot_body_to_earth
+from heli_common.layout import Layout
 from heli_common.plant_model import RotorPlant
 from heli_common.state import N_PITCH, N_STATE, P_X, PHI, PSI, Q_Y, R_Z, THETA, U_F, V_L, W_U, FloatArray
 from heli_common.world import World
@@ -56,37 +57,68 @@ class AirConstants(NamedTuple):
 
 
 # world parameters (float64 array), set by WorldModel, read by the compiled step
-WP_WIND = 0  # 3: steady wind, earth NWU [m/s]
-WP_GUST = 3  # 3: gust at full amplitude, earth NWU [m/s]
-WP_GUST_START = 6
-WP_GUST_RISE = 7
-WP_GUST_HOLD = 8  # inf: holds for ever
-WP_GUST_FALL = 9
-WP_TURB_ON = 10
-WP_TURB_PSI_FROM = 11  # mean-wind heading the turbulence axes follow [rad]
-WP_TURB_CALM = 12  # 1: no mean wind, the axes are north/west/up
-WP_SEED = 13
-WP_DIST_FORCE = 14  # 3
-WP_DIST_TORQUE = 17  # 3
-WP_DIST_BODY = 20  # 1: body frame, 0: earth frame
-WP_DIST_KIND = 21  # 0 constant, 1 step, 2 sine
-WP_DIST_START = 22
-WP_DIST_FREQ = 23
-WP_SERVOS_ON = 24
-N_WP = 25
+WORLD_PARAMS = Layout(
+    "world parameters",
+    ("wind_nwu_m_s", 3),  # steady wind, earth NWU [m/s]
+    ("gust_nwu_m_s", 3),  # gust at full amplitude, earth NWU [m/s]
+    ("gust_start_s", 1),
+    ("gust_rise_s", 1),
+    ("gust_hold_s", 1),  # inf: holds for ever
+    ("gust_fall_s", 1),
+    ("turb_on", 1),
+    ("turb_psi_from_rad", 1),  # mean-wind heading the turbulence axes follow [rad]
+    ("turb_calm", 1),  # 1: no mean wind, the axes are north/west/up
+    ("seed", 1),
+    ("dist_force_n", 3),
+    ("dist_torque_n_m", 3),
+    ("dist_body", 1),  # 1: body frame, 0: earth frame
+    ("dist_kind", 1),  # 0 constant, 1 step, 2 sine
+    ("dist_start_s", 1),
+    ("dist_freq_hz", 1),
+    ("servos_on", 1),
+)
+WP_WIND = WORLD_PARAMS.offset("wind_nwu_m_s")
+WP_GUST = WORLD_PARAMS.offset("gust_nwu_m_s")
+WP_GUST_START = WORLD_PARAMS.offset("gust_start_s")
+WP_GUST_RISE = WORLD_PARAMS.offset("gust_rise_s")
+WP_GUST_HOLD = WORLD_PARAMS.offset("gust_hold_s")
+WP_GUST_FALL = WORLD_PARAMS.offset("gust_fall_s")
+WP_TURB_ON = WORLD_PARAMS.offset("turb_on")
+WP_TURB_PSI_FROM = WORLD_PARAMS.offset("turb_psi_from_rad")
+WP_TURB_CALM = WORLD_PARAMS.offset("turb_calm")
+WP_SEED = WORLD_PARAMS.offset("seed")
+WP_DIST_FORCE = WORLD_PARAMS.offset("dist_force_n")
+WP_DIST_TORQUE = WORLD_PARAMS.offset("dist_torque_n_m")
+WP_DIST_BODY = WORLD_PARAMS.offset("dist_body")
+WP_DIST_KIND = WORLD_PARAMS.offset("dist_kind")
+WP_DIST_START = WORLD_PARAMS.offset("dist_start_s")
+WP_DIST_FREQ = WORLD_PARAMS.offset("dist_freq_hz")
+WP_SERVOS_ON = WORLD_PARAMS.offset("servos_on")
+N_WP = WORLD_PARAMS.size
 DIST_KINDS = {"constant": 0.0, "step": 1.0, "sine": 2.0}
 DIST_NONE = -1.0  # no disturbance: nothing added (not even a zero)
 
 # world state (float64 array), advanced by the compiled step
-WS_STEP = 0  # sub-steps taken (the noise counter)
-WS_LAM_MAIN = 1  # last inflow ratios: the next solve starts there
-WS_LAM_TAIL = 2
-WS_AIR = 3  # 3: the air velocity of the last sub-step, earth NWU [m/s]
-WS_PITCH = 6  # 4: the blade pitches of the last sub-step [rad]
-WS_TURB = 10  # wind.N_DRYDEN_STATE
-WS_ROTOR = WS_TURB + wind.N_DRYDEN_STATE  # rotor.N_ROTOR: the rotor plant's own states
-WS_THROTTLE = WS_ROTOR + rotor.N_ROTOR  # the governor's throttle of the last sub-step [0, 1]
-N_WS = WS_THROTTLE + 1
+WORLD_STATE = Layout(
+    "world state",
+    ("step", 1),  # sub-steps taken (the noise counter)
+    ("lam_main", 1),  # last inflow ratios: the next solve starts there
+    ("lam_tail", 1),
+    ("air_nwu_m_s", 3),  # the air velocity of the last sub-step, earth NWU [m/s]
+    ("pitch_rad", N_PITCH),  # the blade pitches of the last sub-step [rad]
+    ("turb", wind.N_DRYDEN_STATE),  # the Dryden filters' state
+    ("rotor", rotor.N_ROTOR),  # the rotor plant's own states
+    ("throttle", 1),  # the governor's throttle of the last sub-step [0, 1]
+)
+WS_STEP = WORLD_STATE.offset("step")
+WS_LAM_MAIN = WORLD_STATE.offset("lam_main")
+WS_LAM_TAIL = WORLD_STATE.offset("lam_tail")
+WS_AIR = WORLD_STATE.offset("air_nwu_m_s")
+WS_PITCH = WORLD_STATE.offset("pitch_rad")
+WS_TURB = WORLD_STATE.offset("turb")
+WS_ROTOR = WORLD_STATE.offset("rotor")
+WS_THROTTLE = WORLD_STATE.offset("throttle")
+N_WS = WORLD_STATE.size
 
 
 @njit

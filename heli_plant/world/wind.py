@@ -53,6 +53,7 @@ import math
 import numpy as np
 
 from heli_common.jit import njit
+from heli_common.layout import Layout
 from heli_common.state import FloatArray
 from heli_plant.world.noise import (
     STREAM_TURB_INIT,
@@ -79,30 +80,50 @@ W20_SEVERE_M_S = 45.0 * KT_M_S
 _SQRT3 = math.sqrt(3.0)
 
 # --- coefficient array layout (one flat float64 array, see dryden_coefficients) ---------
-# u: first-order block
-C_U_A = 0  # a = exp(-V dt/L_u): one-step decay
-C_U_G = 1  # sqrt(1 - a^2): noise gain of the unit-variance state
-C_U_SIGMA = 2  # sigma_u [m/s]
-# v and w: second-order blocks of N_BLOCK2 entries starting at C_V and C_W
-C_V = 3
-C_W = 11
 # offsets inside a second-order block (normalised coordinates, see the module docstring)
-B_PHI11 = 0  # transition matrix Phi, row-major
-B_PHI12 = 1
-B_PHI21 = 2
-B_PHI22 = 3
-B_L11 = 4  # lower Cholesky factor of Q_d = I - Phi Phi^T: [[L11, 0], [L21, L22]]
-B_L21 = 5
-B_L22 = 6
-B_SIGMA = 7  # sigma [m/s]
-N_BLOCK2 = 8
-N_DRYDEN_COEFFS = C_W + N_BLOCK2  # 19
+BLOCK2 = Layout(
+    "Dryden second-order block",
+    ("phi11", 1), ("phi12", 1), ("phi21", 1), ("phi22", 1),  # transition matrix Phi, row-major
+    # lower Cholesky factor of Q_d = I - Phi Phi^T: [[L11, 0], [L21, L22]]
+    ("l11", 1), ("l21", 1), ("l22", 1),
+    ("sigma", 1),  # sigma [m/s]
+)  # fmt: skip
+B_PHI11 = BLOCK2.offset("phi11")
+B_PHI12 = BLOCK2.offset("phi12")
+B_PHI21 = BLOCK2.offset("phi21")
+B_PHI22 = BLOCK2.offset("phi22")
+B_L11 = BLOCK2.offset("l11")
+B_L21 = BLOCK2.offset("l21")
+B_L22 = BLOCK2.offset("l22")
+B_SIGMA = BLOCK2.offset("sigma")
+N_BLOCK2 = BLOCK2.size
+# u: a first-order filter; v and w: a second-order block each
+DRYDEN_COEFFS = Layout(
+    "Dryden coefficients",
+    ("u_a", 1),  # a = exp(-V dt/L_u): one-step decay
+    ("u_g", 1),  # sqrt(1 - a^2): noise gain of the unit-variance state
+    ("u_sigma", 1),  # sigma_u [m/s]
+    ("v", N_BLOCK2),
+    ("w", N_BLOCK2),
+)
+C_U_A = DRYDEN_COEFFS.offset("u_a")
+C_U_G = DRYDEN_COEFFS.offset("u_g")
+C_U_SIGMA = DRYDEN_COEFFS.offset("u_sigma")
+C_V = DRYDEN_COEFFS.offset("v")
+C_W = DRYDEN_COEFFS.offset("w")
+N_DRYDEN_COEFFS = DRYDEN_COEFFS.size
 
 # --- state layout (normalised: stationary covariance = identity) ------------------------
-S_U = 0  # u_g/sigma_u
-S_V = 1  # v filter, 2 entries: S_V, S_V + 1
-S_W = 3  # w filter, 2 entries: S_W, S_W + 1
-N_DRYDEN_STATE = 5
+DRYDEN_STATE = Layout(
+    "Dryden state",
+    ("u", 1),  # u_g/sigma_u
+    ("v", 2),  # v filter: S_V, S_V + 1
+    ("w", 2),  # w filter: S_W, S_W + 1
+)
+S_U = DRYDEN_STATE.offset("u")
+S_V = DRYDEN_STATE.offset("v")
+S_W = DRYDEN_STATE.offset("w")
+N_DRYDEN_STATE = DRYDEN_STATE.size
 
 # Series vs closed form in _incomplete_gamma (both accurate to ~1e-16 relative there).
 _SERIES_X_MAX = 1.0

@@ -10,8 +10,8 @@ from typing import Any
 
 from autopilot.flight_metrics import FlightMetrics
 from autopilot.metrics import FlightRecord
-from heli_sitl.campaign.settings import Flight, apply
-from heli_sitl.campaign.spec import CampaignSpec
+from heli_sitl.campaigns.settings import Flight, apply
+from heli_sitl.campaigns.spec import CampaignSpec
 from heli_sitl.closed_loop import SimOptions, simulate
 
 #: the metrics' units and meaning (campaign.json carries them)

@@ -47,11 +47,12 @@ from autopilot.user_controller import is_user_spec, normalise_spec
 from heli_common.config import CONFIG_DIR, ConfigError, read_toml, resolve
 from heli_common.plant_model import PlantModel
 from heli_common.world import World
-from heli_sitl.campaign import engine
-from heli_sitl.campaign.flight import flight_seed
-from heli_sitl.campaign.run import run_campaign
-from heli_sitl.campaign.settings import canonical
-from heli_sitl.campaign.spec import CampaignSpec, Vary, load_campaign
+from heli_sitl.campaigns import engine
+from heli_sitl.campaigns.counts import CampaignCounts, flags
+from heli_sitl.campaigns.flight import flight_seed
+from heli_sitl.campaigns.run import run_campaign
+from heli_sitl.campaigns.settings import canonical
+from heli_sitl.campaigns.spec import CampaignSpec, Vary, load_campaign
 from heli_sitl.closed_loop import SimOptions, simulate
 from heli_sitl.scorecard import LABELS, FlightScore, score
 from heli_sitl.stats import Interval, Paired, loss_rate, paired, percentile_ci
@@ -353,15 +354,11 @@ def _col(t: pa.Table, name: str) -> np.ndarray:
     return np.array([np.nan if v is None else v for v in t.column(name).to_pylist()], dtype=float)
 
 
-def _flag(t: pa.Table, name: str) -> np.ndarray:
-    return np.array([bool(v) for v in t.column(name).to_pylist()])
-
-
 def largest_converged(t: pa.Table, key: str, fixed: dict[str, float] | None = None) -> float:
     """The largest level of ``key`` up to which every flight converged (with the other keys
     at ``fixed`` values, or at every level when ``fixed`` is None); NaN if not the first."""
     x = _col(t, key)
-    ok = _flag(t, "converged") & ~_flag(t, "failed")
+    ok = flags(t, "converged") & ~flags(t, "failed")
     sel = np.ones(x.size, bool)
     for k, v in (fixed or {}).items():
         sel &= np.isclose(_col(t, k), v)
@@ -380,13 +377,10 @@ def grid_keys(spec: CampaignSpec) -> tuple[str, ...]:
 
 
 def campaign_summary(t: pa.Table, spec: CampaignSpec) -> dict[str, Any]:
-    failed = _flag(t, "failed")
-    out: dict[str, Any] = {
-        "flights": int(t.num_rows),
-        "failed": int(failed.sum()),
-        "converged": int((_flag(t, "converged") & ~failed).sum()),
-        "diverged": int((_flag(t, "diverged") & ~failed).sum()),
-    }
+    failed = flags(t, "failed")
+    c = CampaignCounts.of(t)
+    out: dict[str, Any] = {"flights": c.flights, "failed": c.failed, "converged": c.converged or 0,
+                           "diverged": c.diverged or 0}  # fmt: skip
     for m in ("rms_10_m", "rms_45_m", "max_err_10_m", "pitch_travel_rad", "converge_s"):
         v = _col(t, m)[~failed]
         v = v[np.isfinite(v)]
@@ -612,7 +606,9 @@ def plot_campaigns(
                     a.set_xlabel(m.replace("_m", " [m]"))
                     a.set_ylabel("fraction of flights")
                     a.grid(True, which="both", alpha=0.3)
-            axs[0].legend(fontsize=8)
+            # every legend below its axes: inside, one sat on the curves and boundaries
+            fig.legend(*axs[0].get_legend_handles_labels(), loc="upper center", bbox_to_anchor=(0.5, 0.0),
+                       ncol=min(4, len(by)), fontsize=8, frameon=False)  # fmt: skip
             fig.suptitle(
                 f"{name}: {next(iter(by.values())).num_rows} flights each, the same samples", fontsize=10
             )
@@ -620,7 +616,7 @@ def plot_campaigns(
             fig, ax = plt.subplots(figsize=(6.5, 5))
             k0, k1 = grid_keys(spec)
             for (lab, t), col in zip(by.items(), COLORS, strict=False):
-                x, y, ok = _col(t, k0), _col(t, k1), _flag(t, "converged")
+                x, y, ok = _col(t, k0), _col(t, k1), flags(t, "converged")
                 xs, ys = np.unique(x), np.unique(y)
                 z = np.full((ys.size, xs.size), np.nan)
                 for xi, yi, c in zip(x, y, ok, strict=True):
@@ -630,24 +626,24 @@ def plot_campaigns(
                 ax.plot(x[ok], y[ok], ".", color=col, ms=4, alpha=0.5)
             ax.set_xlabel(k0)
             ax.set_ylabel(k1)
-            ax.legend(fontsize=8)
+            ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=2, fontsize=8, frameon=False)
             ax.set_title(f"{name}: the boundary of convergence", fontsize=10)
         else:  # a larger grid: converged fraction against the first key
             fig, ax = plt.subplots(figsize=(6.5, 4))
             k0 = grid_keys(spec)[0]
             for (lab, t), col in zip(by.items(), COLORS, strict=False):
-                x, ok = _col(t, k0), _flag(t, "converged")
+                x, ok = _col(t, k0), flags(t, "converged")
                 xs = np.unique(x)
                 ax.plot(xs, [ok[x == v].mean() for v in xs], "o-", color=col, label=lab)
             ax.set_xlabel(k0)
             ax.set_ylabel("fraction converged (over the other keys' levels)")
             ax.set_ylim(-0.05, 1.05)
             ax.grid(True, alpha=0.3)
-            ax.legend(fontsize=8)
+            ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.15), ncol=2, fontsize=8, frameon=False)
             ax.set_title(name, fontsize=10)
         fig.tight_layout()
         files.append(out / f"{prefix}campaign_{name}.png")
-        fig.savefig(files[-1], dpi=110)
+        fig.savefig(files[-1], dpi=110, bbox_inches="tight")  # the tight box takes the legend in
         plt.close(fig)
     return files
 

@@ -27,9 +27,9 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from heli_sitl.campaign.flight import fly
-from heli_sitl.campaign.settings import Flight
-from heli_sitl.campaign.spec import CampaignSpec
+from heli_sitl.campaigns.flight import fly
+from heli_sitl.campaigns.settings import Flight
+from heli_sitl.campaigns.spec import CampaignSpec
 
 PARTS = "parts"
 RESULTS = "results.parquet"

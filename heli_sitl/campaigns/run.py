@@ -25,11 +25,12 @@ from autopilot.user_controller import is_user_spec, normalise_spec
 from heli_common.config import ConfigError
 from heli_common.plant_model import PlantModel
 from heli_common.world import World
-from heli_sitl.campaign import engine, report
-from heli_sitl.campaign.flight import METRIC_DOC
-from heli_sitl.campaign.sampling import sample_table
-from heli_sitl.campaign.settings import Flight, canonical, check
-from heli_sitl.campaign.spec import CampaignSpec, Vary, load_campaign
+from heli_sitl.campaigns import engine, report
+from heli_sitl.campaigns.counts import CampaignCounts
+from heli_sitl.campaigns.flight import METRIC_DOC
+from heli_sitl.campaigns.sampling import sample_table
+from heli_sitl.campaigns.settings import Flight, canonical, check
+from heli_sitl.campaigns.spec import CampaignSpec, Vary, load_campaign
 
 ID_FILE = "campaign-id.json"
 
@@ -71,7 +72,7 @@ def prepare(
         raise ConfigError(f"{spec.source}: vary: two keys name the same setting ({', '.join(spec.keys)})")
     # another controller's gains would change nothing: flights that differ in name only
     for prefix, owner in (("pid.", "pid"), ("gains.", "tlc")):
-        flown = "your controller" if is_user_spec(spec.controller) else spec.controller.upper()
+        flown = "your controller" if is_user_spec(spec.controller) else f"the {spec.controller.upper()}"
         for v in spec.vary:
             if owner != spec.controller and canonical(v.key).startswith(prefix):
                 raise ConfigError(
@@ -163,7 +164,7 @@ def run_campaign(
     results = engine.collect(out, spec)
     wall = time.perf_counter() - t_start
     duration = spec.duration_s or base.scenario.run.duration_s
-    c = report.counts(results)
+    c = CampaignCounts.of(results)
     rows = report.summary_rows(spec, results)
     workers_used = stats.workers or n_workers
     flown_s = stats.flights * duration
@@ -176,7 +177,7 @@ def run_campaign(
         "campaign": ident,
         "spec": dataclasses.asdict(spec),
         "versions": versions(),
-        "counts": c,
+        "counts": c.as_dict(),
         "metrics": rows,
         "metric_doc": {k: METRIC_DOC[k] for k in spec.metrics},
         "run": {

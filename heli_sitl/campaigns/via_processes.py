@@ -12,13 +12,13 @@ from typing import Any
 
 import pyarrow.parquet as pq
 
-from autopilot.flight_metrics import window_value
+from autopilot.flight_metrics import FlightMetrics
 from autopilot.pid.gains import default_pid_gains
 from heli_common.config import as_table, read_toml, to_toml
-from heli_sitl.campaign import engine
-from heli_sitl.campaign.flight import flight_seed
-from heli_sitl.campaign.run import prepare
-from heli_sitl.campaign.settings import Flight, apply
+from heli_sitl.campaigns import engine
+from heli_sitl.campaigns.flight import flight_seed
+from heli_sitl.campaigns.run import prepare
+from heli_sitl.campaigns.settings import Flight, apply
 from heli_sitl.demo import DemoError, DemoOptions, run_demo
 
 
@@ -32,6 +32,9 @@ def write_files(f: Flight, base_scenario: Path, d: Path) -> dict[str, Path]:
     run["gains"] = str((d / "gains.toml").resolve())
     run["airframe"] = str((base_scenario.parent / f.scenario.run.airframe).resolve())
     table["run"] = run
+    traj = table.get("trajectory")
+    if isinstance(traj, dict) and traj.get("kind") == "csv":  # the table stays where it was
+        traj["path"] = str((base_scenario.parent / str(traj["path"])).resolve())
     table["initial_state"] = as_table(f.scenario.initial)
     (d / "scenario.toml").write_text(to_toml(table))
     world = as_table(f.world)
@@ -80,12 +83,8 @@ def compare(
             if not quiet:
                 print(f"sample {sid}: processes failed: {exc}")
             continue
-        windows = summary["rms_pos_err_m"]
-        assert isinstance(windows, dict)
-        proc = {
-            k: window_value(windows, t0)
-            for k, t0 in (("rms_0_m", 0.0), ("rms_10_m", 10.0), ("rms_45_m", 45.0))
-        }
+        m = FlightMetrics.from_summary(summary)
+        proc = {"rms_0_m": m.rms_0_m, "rms_10_m": m.rms_10_m, "rms_45_m": m.rms_45_m}
         inproc = rows.get(sid, {})
         diff = {k: abs(proc[k] - inproc.get(k, math.nan)) for k in proc}
         results.append(

@@ -18,7 +18,7 @@ from scipy import stats
 from scipy.stats import qmc
 
 from heli_common.state import FloatArray
-from heli_sitl.campaign.spec import CampaignSpec, Vary
+from heli_sitl.campaigns.spec import CampaignSpec, Vary
 
 
 def _ppf(v: Vary, u: FloatArray) -> FloatArray:
