@@ -615,7 +615,7 @@ def format_table(reports: Iterable[MarginReport], *, merge_channels: bool = True
     margins print the same share one row (``roll/pitch/yaw``)."""
     head = (
         "| gains | servos (delay + lag) | loop | channel | crossover [rad/s] | PM [deg] | "
-        "GM [dB] | delay margin [ms] | stable |"
+        "GM [dB] | delay margin [ms] | closed loop stable |"
     )
     lines = [head, "|---|---|---|---|---|---|---|---|---|"]
     for r in reports:
@@ -623,7 +623,8 @@ def format_table(reports: Iterable[MarginReport], *, merge_channels: bool = True
         for m in r.loops:
             cells = (
                 _fmt(m.crossover_rad_s, ".2f"),
-                _fmt(m.phase_margin_deg, ".1f") + (f" ({m.crossovers} x)" if m.crossovers > 1 else ""),
+                _fmt(m.phase_margin_deg, ".1f")
+                + (f" (of {m.crossovers} crossovers)" if m.crossovers > 1 else ""),
                 _fmt(m.gain_margin_db, ".1f"),
                 _fmt(m.delay_margin_s * 1e3, ".0f"),
                 "yes" if m.stable else "**no**",
@@ -638,6 +639,15 @@ def format_table(reports: Iterable[MarginReport], *, merge_channels: bool = True
                 + " | ".join(row[1:])
                 + " |"
             )
+    lines += [
+        "",
+        "PM: the smallest phase margin over the loop's gain crossovers ('of 3 crossovers': |L| crosses 1 "
+        "three times; a negative PM: the phase is past -180 deg at one of them). Closed loop stable: "
+        "this loop and every inner one closed, all poles in the left half-plane. A loop can show a "
+        "comfortable PM and still be unstable when its open loop is itself unstable (an inner loop "
+        "that does not close): the margin of an unstable loop is no margin, so stability is judged "
+        "on the poles, never on PM alone.",
+    ]
     return "\n".join(lines)
 
 

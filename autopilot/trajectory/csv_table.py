@@ -50,7 +50,7 @@ from scipy.interpolate import CubicSpline, PPoly
 from scipy.linalg import solve_banded
 
 from autopilot.reference import ACC_0, N_REF, POS_0, REF_ACC, REF_POS, REF_VEL, VEL_0
-from autopilot.trajectory.base import Trajectory
+from autopilot.trajectory.sampled import TimedSamples
 from heli_common.config import ConfigError
 from heli_common.state import FloatArray
 
@@ -64,7 +64,7 @@ COLUMNS = (*REQUIRED, *VELOCITY, *ACCELERATION, YAW)  # every accepted column, i
 MIN_ROWS = 2  # one interval: two rows determine a piece (a line, or a quintic when derivatives are given)
 
 
-class CsvTrajectory(Trajectory):
+class CsvTrajectory(TimedSamples):
     """C2 trajectory through samples: time [s], position NWU [m], optional velocity [m/s],
     acceleration [m/s^2] (needs velocity) and yaw [rad] (kept, not flown: see the module)."""
 
@@ -91,17 +91,7 @@ class CsvTrajectory(Trajectory):
         acc = None if acc_nwu_m_s2 is None else _samples(acc_nwu_m_s2, n, "acc_nwu_m_s2")
         if acc is not None and vel is None:
             raise ValueError("acceleration samples need velocity samples")
-        self._t = t
-        self._pos = pos
-        self.duration_s = float(t[-1])
-        self._yaw: FloatArray | None = None
-        if yaw_nwu_rad is not None:
-            yaw = np.asarray(yaw_nwu_rad, dtype=float).reshape(-1)
-            if yaw.shape != (n,):
-                raise ValueError(f"yaw_nwu_rad must have {n} values, got {yaw.shape}")
-            if not np.all(np.isfinite(yaw)):
-                raise ValueError("yaw samples must be finite")
-            self._yaw = np.unwrap(yaw)
+        self._keep_samples(t, pos, yaw_nwu_rad)
         pp: PPoly
         if vel is None:
             pp = CubicSpline(t, pos, axis=0, bc_type="not-a-knot")
@@ -116,18 +106,6 @@ class CsvTrajectory(Trajectory):
         # [interval][axis][power, highest first] for position, velocity, acceleration
         self._knots: list[float] = t.tolist()
         self._coef = [np.transpose(p.c, (1, 2, 0)).tolist() for p in (pp, self._pp_vel, self._pp_acc)]
-
-    @property
-    def t_s(self) -> FloatArray:
-        return self._t.copy()
-
-    @property
-    def pos_nwu_m(self) -> FloatArray:
-        return self._pos.copy()
-
-    @property
-    def has_yaw(self) -> bool:
-        return self._yaw is not None
 
     def sample(self, t_s: npt.ArrayLike) -> FloatArray:
         t = np.asarray(t_s, dtype=float).reshape(-1)
@@ -157,14 +135,6 @@ class CsvTrajectory(Trajectory):
                 out[first + axis] = v
         return np.array(out)
 
-    def yaw_nwu_rad(self, t_s: npt.ArrayLike) -> FloatArray:
-        """The table's yaw (NWU psi, in [-pi, pi)): linear between unwrapped samples, held
-        beyond the ends; NaN without a yaw column. Kept for the future: not flown."""
-        t = np.asarray(t_s, dtype=float).reshape(-1)
-        if self._yaw is None:
-            return np.full(t.size, np.nan)
-        yaw = np.interp(t, self._t, self._yaw)
-        return np.asarray((yaw + np.pi) % (2.0 * np.pi) - np.pi, dtype=float)
 
 
 def _first(mask: npt.NDArray[np.bool_]) -> int:

@@ -36,7 +36,50 @@ from heli_common.state import FloatArray
 N_AXES = 3
 
 
-class SampledTrajectory(Trajectory):
+class TimedSamples(Trajectory):
+    """What every trajectory through time-stamped samples keeps: the times, the positions
+    and an optional yaw (unwrapped; linear between samples), and how it reports them."""
+
+    _t: FloatArray
+    _pos: FloatArray
+    _yaw: FloatArray | None
+
+    def _keep_samples(self, t: FloatArray, pos: FloatArray, yaw_nwu_rad: npt.ArrayLike | None) -> None:
+        self._t = t
+        self._pos = pos
+        self.duration_s = float(t[-1])
+        self._yaw = None
+        if yaw_nwu_rad is not None:
+            yaw = np.asarray(yaw_nwu_rad, dtype=float).reshape(-1)
+            if yaw.shape != (t.size,):
+                raise ValueError(f"yaw_nwu_rad must have {t.size} values, got {yaw.shape}")
+            if not np.all(np.isfinite(yaw)):
+                raise ValueError("yaw samples must be finite")
+            self._yaw = np.unwrap(yaw)
+
+    @property
+    def t_s(self) -> FloatArray:
+        return self._t.copy()
+
+    @property
+    def pos_nwu_m(self) -> FloatArray:
+        return self._pos.copy()
+
+    @property
+    def has_yaw(self) -> bool:
+        return self._yaw is not None
+
+    def yaw_nwu_rad(self, t_s: npt.ArrayLike) -> FloatArray:
+        """Commanded yaw (NWU psi, in [-pi, pi)): linear between unwrapped samples, held
+        beyond the ends; NaN if none."""
+        t = np.asarray(t_s, dtype=float).reshape(-1)
+        if self._yaw is None:
+            return np.full(t.size, np.nan)
+        yaw = np.interp(t, self._t, self._yaw)
+        return np.asarray((yaw + np.pi) % (2.0 * np.pi) - np.pi, dtype=float)
+
+
+class SampledTrajectory(TimedSamples):
     """C2 cubic-spline trajectory through samples (t [s], pos NWU [m], optional yaw)."""
 
     def __init__(
@@ -62,18 +105,8 @@ class SampledTrajectory(Trajectory):
         mask = np.zeros(n, dtype=np.int64) if break_mask is None else np.asarray(break_mask)
         if mask.shape != (n,) or np.any(mask < 0) or np.any(mask > 2**N_AXES - 1):
             raise ValueError(f"break_mask must be {n} integers in [0, 7]")
-        self._t = t
-        self._pos = pos
+        self._keep_samples(t, pos, yaw_nwu_rad)
         self._mask = mask.astype(np.int64)
-        self.duration_s = float(t[-1])
-        self._yaw: FloatArray | None = None
-        if yaw_nwu_rad is not None:
-            yaw = np.asarray(yaw_nwu_rad, dtype=float).reshape(-1)
-            if yaw.shape != (n,):
-                raise ValueError(f"yaw_nwu_rad must have {n} values, got {yaw.shape}")
-            if not np.all(np.isfinite(yaw)):
-                raise ValueError("yaw samples must be finite")
-            self._yaw = np.unwrap(yaw)
         # Per axis: the piece start times and their splines (split where the mask says).
         self._pieces: list[tuple[FloatArray, list[CubicSpline]]] = []
         for axis in range(N_AXES):
@@ -95,20 +128,8 @@ class SampledTrajectory(Trajectory):
         ]
 
     @property
-    def t_s(self) -> FloatArray:
-        return self._t.copy()
-
-    @property
-    def pos_nwu_m(self) -> FloatArray:
-        return self._pos.copy()
-
-    @property
     def break_mask(self) -> npt.NDArray[np.int64]:
         return self._mask.copy()
-
-    @property
-    def has_yaw(self) -> bool:
-        return self._yaw is not None
 
     def sample(self, t_s: npt.ArrayLike) -> FloatArray:
         t = np.asarray(t_s, dtype=float).reshape(-1)
@@ -146,11 +167,3 @@ class SampledTrajectory(Trajectory):
                 out[3 + axis] = (3.0 * c0 * d + 2.0 * c1) * d + c2
                 out[6 + axis] = 6.0 * c0 * d + 2.0 * c1
         return np.array(out)
-
-    def yaw_nwu_rad(self, t_s: npt.ArrayLike) -> FloatArray:
-        """Commanded yaw (NWU psi, in [-pi, pi)): linear between unwrapped samples; NaN if none."""
-        t = np.asarray(t_s, dtype=float).reshape(-1)
-        if self._yaw is None:
-            return np.full(t.size, np.nan)
-        yaw = np.interp(t, self._t, self._yaw)
-        return np.asarray((yaw + np.pi) % (2.0 * np.pi) - np.pi, dtype=float)
