@@ -58,7 +58,8 @@ class Child:
             self._log = log_path.open("w", encoding="utf-8", errors="replace")
             # a quiet run leaves nothing else here (the processes log warnings and errors
             # only): say what ran, so an empty-looking log is not mistaken for a lost one
-            self._log.write(f"# {name}: {shlex.join(cmd)}\n# its warnings and errors follow (none: a "
+            one_line = shlex.join(cmd).replace("\n", "\\n")  # a `python -c` script has newlines
+            self._log.write(f"# {name}: {one_line}\n# its warnings and errors follow (none: a "
                             "clean run); -v on its command line logs more\n")  # fmt: skip
             self._log.flush()
         self.proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, preexec_fn=die_with_parent)

@@ -110,7 +110,11 @@ def test_a_child_writing_megabytes_to_stderr_is_not_blocked(tmp_path: Path) -> N
     child.join_output()
     assert child.last_error_line() == "the last line"
     assert child.lines == 8193
-    assert (tmp_path / "chatty.log").stat().st_size == 8192 * 1024 + len("the last line\n")
+    log_lines = (tmp_path / "chatty.log").read_text().splitlines(keepends=True)
+    # the launcher's header (2 lines: the command, what follows) and footer (the exit status)
+    assert log_lines[0].startswith("# chatty: ")
+    assert log_lines[-1].startswith("# chatty ended with exit status 0")
+    assert sum(len(x) for x in log_lines[2:-1]) == 8192 * 1024 + len("the last line\n")
 
 
 def test_a_dead_child_is_reported_by_name_of_its_signal() -> None:

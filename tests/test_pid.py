@@ -93,7 +93,7 @@ def test_both_controllers_fly_the_paper_in_process_and_nothing_else_changes() ->
     assert pid.rows().shape == tlc.rows().shape
     assert sp["rms_pos_err_m"]["10-60"] < 0.5 and sp["max_abs_phi_rad"] < 0.35
     assert not np.array_equal(pid.pitches, tlc.pitches)
-    with pytest.raises(ValueError, match="tlc or pid"):
+    with pytest.raises(ValueError, match="tlc, pid or module:Class"):
         simulate(sc, SimOptions(duration_s=1.0, controller="lqr"))
 
 
