@@ -27,7 +27,7 @@ def bench_user_controller() -> list[Row]:
     rows = [
         Row("floor: in-process tick, compiled TLC + plant in one compiled loop", compiled, "us"),
         Row("in-process tick, LQR in Python (docs/examples/lqr_hover.py)", lqr, "us"),
-        Row("  of which the Python path with the compiled TLC called from Python", wrapped, "us"),
+        Row("  the Python path itself: the compiled TLC called from Python each tick", wrapped, "us"),
         Row("  LQR in Python / compiled loop", lqr / compiled, "x"),
     ]
     rtt = raw_round_trip_us()
