@@ -11,6 +11,7 @@ import json
 import sys
 from pathlib import Path
 
+from autopilot.flight_metrics import FlightMetrics
 from heli_common import cli_args as arg
 from heli_common.defaults import HOME, Exit, ports
 from heli_common.geo import parse_geo_point
@@ -78,8 +79,7 @@ def _simulate(args: argparse.Namespace) -> int:
         figs.append(plot_estimate(record.t_s, record.x[:, 0:3], record.x_hat[:, 0:3], record.est_log[:, 0:3],
                                   out, title=f"{title}, world {world_name}"))  # fmt: skip
         figs.append(out / "est.csv")
-    rms = summary["rms_pos_err_m"]
-    print("RMS 3-D position error: " + ", ".join(f"[{k}] s {v:.4f} m" for k, v in rms.items()))
+    print(rms_line(FlightMetrics.of(record)))
     jump = summary["max_pos_err_40_45_m"]  # the paper's slope jump: its scenario only
     print(
         (f"max error in [40, 45] s: {jump:.3f} m; " if jump is not None else "")
@@ -325,9 +325,7 @@ def _demo(args: argparse.Namespace) -> int:
         commanded = np.column_stack([cols[k] for k in PITCH_KEYS])
         title = f"{args.mode}, world {args.world}"
         figs.append(plot_world(w["t"], air, commanded, reached, out, title=title))
-    rms = summary["rms_pos_err_m"]
-    assert isinstance(rms, dict)
-    print("RMS 3-D position error: " + ", ".join(f"[{k}] s {v:.4f} m" for k, v in rms.items()))
+    print(rms_line(FlightMetrics.from_summary(summary)))
     loop = summary.get("loop", {})
     assert isinstance(loop, dict)
     print(
@@ -360,6 +358,10 @@ def _campaign(args: argparse.Namespace) -> int:
               f"their rows in {args.out}/results.parquet say why): exit 3", file=sys.stderr)
         return 3
     return 0
+
+
+def rms_line(m: FlightMetrics) -> str:
+    return "RMS 3-D position error: " + ", ".join(f"[{k}] s {v:.4f} m" for k, v in m.rms_m.items())
 
 
 def add_controller_args(p: argparse.ArgumentParser) -> None:
