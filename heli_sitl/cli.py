@@ -10,8 +10,8 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from autopilot.flight_metrics import FlightMetrics
 from heli_common import cli_args as arg
 from heli_common.defaults import HOME, Exit, ports
 from heli_common.geo import parse_geo_point
@@ -19,6 +19,9 @@ from heli_common.plant_model import PLANT_HELP
 from heli_common.process import UsageError, run_main
 from heli_common.servo_link import add_servo_args
 from heli_common.world import World
+
+if TYPE_CHECKING:
+    from autopilot.flight_metrics import FlightMetrics
 
 GAINS_HELP = ("the controller's gain set instead of the scenario's (configs/: gains_paper.toml, "
               "gains_servo_aware.toml for real servos, see docs/servo-aware-gains.md)")
@@ -79,6 +82,8 @@ def _simulate(args: argparse.Namespace) -> int:
         figs.append(plot_estimate(record.t_s, record.x[:, 0:3], record.x_hat[:, 0:3], record.est_log[:, 0:3],
                                   out, title=f"{title}, world {world_name}"))  # fmt: skip
         figs.append(out / "est.csv")
+    from autopilot.flight_metrics import FlightMetrics
+
     print(rms_line(FlightMetrics.of(record)))
     jump = summary["max_pos_err_40_45_m"]  # the paper's slope jump: its scenario only
     print(
@@ -325,6 +330,8 @@ def _demo(args: argparse.Namespace) -> int:
         commanded = np.column_stack([cols[k] for k in PITCH_KEYS])
         title = f"{args.mode}, world {args.world}"
         figs.append(plot_world(w["t"], air, commanded, reached, out, title=title))
+    from autopilot.flight_metrics import FlightMetrics
+
     print(rms_line(FlightMetrics.from_summary(summary)))
     loop = summary.get("loop", {})
     assert isinstance(loop, dict)
@@ -365,7 +372,7 @@ def rms_line(m: FlightMetrics) -> str:
 
 
 def add_controller_args(p: argparse.ArgumentParser) -> None:
-    from autopilot.controllers import CONTROLLER_HELP, controller_arg
+    from autopilot.controllers import CONTROLLER_HELP
 
     p.add_argument("--controller", type=controller_arg, default="tlc", metavar="NAME", help=CONTROLLER_HELP)
     p.add_argument("--pid-gains", default=None, metavar="FILE", help="PID gains (TOML) for --controller pid")
@@ -376,9 +383,15 @@ def controller_args(args: argparse.Namespace) -> tuple[str, ...]:
     return ("--controller", args.controller) + (("--pid-gains", args.pid_gains) if args.pid_gains else ())
 
 
-def build_parser() -> argparse.ArgumentParser:
-    from autopilot.controllers import controller_arg
+def controller_arg(value: str) -> str:
+    """``--controller``'s type, importing the controllers only when a command flies one (the
+    plant process, ``heli-sitl run``, imports nothing of the autopilot)."""
+    from autopilot.controllers import controller_arg as check
 
+    return check(value)
+
+
+def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="heli-sitl", description=__doc__)
     sub = p.add_subparsers(dest="cmd", required=True)
     s = sub.add_parser("simulate", help="closed loop in one process; writes CSV, summary, figures")
