@@ -20,7 +20,7 @@ CSV_HEADER = (
 PITCH_KEYS = ("theta_m", "theta_t", "eps", "eta")
 WORLD_CSV_HEADER = ("t", "air_n", "air_w", "air_u", "theta_m_pos", "theta_t_pos", "eps_pos", "eta_pos")
 # est.csv, flying from sensors: the estimate the controller flew on, beside run.csv's truth,
-# then the estimator's log (autopilot.estimation.kf.EST_LOG_COLUMNS)
+# then the estimator's log (autopilot.estimation.log.EST_LOG_COLUMNS)
 EST_CSV_STATE = ("t", "x_est", "y_est", "z_est", "phi_est", "theta_est", "psi_est")
 # the rotor plant's own states after run.csv's columns: flapping (forward, right tilt of the
 # tip-path plane [rad]), rotor speed [rad/s] and the governor's throttle [0, 1]
@@ -153,7 +153,8 @@ class FlightRecord:
                 out["rms_est_err_m"][key] = float(np.sqrt(np.mean(est[m] ** 2)))
                 out["max_est_err_m"][key] = float(np.max(est[m]))
         if self.est_log is not None:
-            from autopilot.estimation.kf import ACCEPTED, EST_LOG_COLUMNS, REJECTED, RESET
+            from autopilot.estimation.kf import ACCEPTED, REJECTED, RESET
+            from autopilot.estimation.log import EST_LOG_COLUMNS
 
             st = self.est_log[:, EST_LOG_COLUMNS.index("gps_status")]
             out["gps_fixes"] = {
@@ -189,7 +190,7 @@ class FlightRecord:
         the estimator's log; False (nothing written) when it flew on the truth."""
         if self.x_hat is None or self.est_log is None:
             return False
-        from autopilot.estimation.kf import EST_LOG_COLUMNS
+        from autopilot.estimation.log import EST_LOG_COLUMNS
 
         e = self.x_hat[:, EULER].copy()
         e[:, 2] = np.unwrap(e[:, 2])

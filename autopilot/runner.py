@@ -26,7 +26,7 @@ from autopilot.clock import Clock, SystemClock
 from autopilot.control import D_PHI_C, D_PSI_C, D_THETA_C, N_DIAG, OK
 from autopilot.controllers import FlyingController
 from autopilot.estimation.config import EstimatorConfig
-from autopilot.estimation.kf import N_EST_LOG
+from autopilot.estimation.log import N_EST_LOG
 from autopilot.estimation.onboard import OnboardEstimator
 from autopilot.flight.manager import FlightManager
 from autopilot.flight.modes import Mode
@@ -294,7 +294,7 @@ class Runner:
         if s is None or s.meas is None:
             return truth
         if self.nav is None:
-            self.nav = OnboardEstimator(self.estimator, self.cfg.rate_hz, truth)
+            self.nav = OnboardEstimator(self.estimator, self.cfg.rate_hz, truth, self.manager.cfg.home)
         x_hat = self.nav.update(s.meas_t_s, s.meas, s.meas_mask)
         h = self.nav.health
         self.manager.navigation(t_s, x_hat, h.gps_lost, h.n_rejected, h.n_resets)
@@ -384,7 +384,7 @@ class Runner:
         """Load the compiled code of the first tick (controller, services) before the clock
         starts: tens of milliseconds that would otherwise make the first ticks late."""
         self.ctrl.warm_up(x)
-        OnboardEstimator(self.estimator, self.cfg.rate_hz, x).warm_up()
+        OnboardEstimator(self.estimator, self.cfg.rate_hz, x, self.manager.cfg.home).warm_up()
         for s in self.services:
             s.warm_up(x)
 

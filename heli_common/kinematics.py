@@ -76,3 +76,70 @@ def wrap_pi(angle_rad: float) -> float:
     elif a <= -math.pi:
         a += 2.0 * math.pi
     return a
+
+
+# --- unit quaternions q = (w, x, y, z) of the body-to-earth rotation (FLU -> NWU), the same
+# rotation as rot_body_to_earth: R(q) = Rz(psi) Ry(theta) Rx(phi). Hamilton product,
+# right-handed (Sola 2017, "Quaternion kinematics for the error-state Kalman filter", s. 2-4).
+
+
+@njit
+def quat_from_euler(phi: float, theta: float, psi: float) -> FloatArray:
+    """The quaternion of the ZYX Euler angles (w >= 0 is not enforced)."""
+    cr, sr = math.cos(0.5 * phi), math.sin(0.5 * phi)
+    cp, sp = math.cos(0.5 * theta), math.sin(0.5 * theta)
+    cy, sy = math.cos(0.5 * psi), math.sin(0.5 * psi)
+    q = np.empty(4)
+    q[0] = cr * cp * cy + sr * sp * sy
+    q[1] = sr * cp * cy - cr * sp * sy
+    q[2] = cr * sp * cy + sr * cp * sy
+    q[3] = cr * cp * sy - sr * sp * cy
+    return q
+
+
+@njit
+def rot_from_quat(q: FloatArray) -> FloatArray:
+    """R(q), body to earth."""
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    r = np.empty((3, 3))
+    r[0, 0] = 1.0 - 2.0 * (y * y + z * z)
+    r[0, 1] = 2.0 * (x * y - w * z)
+    r[0, 2] = 2.0 * (x * z + w * y)
+    r[1, 0] = 2.0 * (x * y + w * z)
+    r[1, 1] = 1.0 - 2.0 * (x * x + z * z)
+    r[1, 2] = 2.0 * (y * z - w * x)
+    r[2, 0] = 2.0 * (x * z - w * y)
+    r[2, 1] = 2.0 * (y * z + w * x)
+    r[2, 2] = 1.0 - 2.0 * (x * x + y * y)
+    return r
+
+
+@njit
+def euler_from_rot(r: FloatArray) -> tuple[float, float, float]:
+    """ZYX Euler angles (phi, theta, psi) of a body-to-earth rotation matrix."""
+    s = max(-1.0, min(1.0, -r[2, 0]))
+    return math.atan2(r[2, 1], r[2, 2]), math.asin(s), math.atan2(r[1, 0], r[0, 0])
+
+
+@njit
+def quat_mul(a: FloatArray, b: FloatArray) -> FloatArray:
+    """The Hamilton product a (x) b: rotate by b, then by a."""
+    out = np.empty(4)
+    out[0] = a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3]
+    out[1] = a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2]
+    out[2] = a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1]
+    out[3] = a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0]
+    return out
+
+
+@njit
+def quat_from_rotvec(vx: float, vy: float, vz: float) -> FloatArray:
+    """Exp of a rotation vector [rad] (axis times angle); exact, with the series near 0."""
+    angle = math.sqrt(vx * vx + vy * vy + vz * vz)
+    q = np.empty(4)
+    if angle < 1e-8:
+        q[0], s = 1.0 - angle * angle / 8.0, 0.5 - angle * angle / 48.0
+    else:
+        q[0], s = math.cos(0.5 * angle), math.sin(0.5 * angle) / angle
+    q[1], q[2], q[3] = s * vx, s * vy, s * vz
+    return q

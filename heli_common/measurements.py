@@ -24,10 +24,17 @@ MEASUREMENTS = Layout(
     ("gps_t", 1),  # validity time of the fix delivered
     ("gps_pos", 3),  # earth NWU [m]
     ("gps_vel", 3),  # earth NWU [m/s]
+    # the receiver's status with the fix delivered (written with each fix)
+    ("gps_fix_type", 1),  # MAVLink GPS_FIX_TYPE (3: 3D fix)
+    ("gps_sats", 1),  # satellites visible
+    ("gps_eph_m", 1),  # its own 1-sigma horizontal position accuracy, per axis [m]
+    ("gps_epv_m", 1),  # its own 1-sigma vertical position accuracy [m]
     ("att_t", 1),
     ("att", 3),  # ZYX Euler [rad]
     ("baro_t", 1),
     ("baro_alt", 1),  # height above home [m]
+    ("mag_t", 1),
+    ("mag", 3),  # body FLU magnetic field [gauss]
 )
 OUT_IMU_T = MEASUREMENTS.offset("imu_t")
 OUT_GYRO = MEASUREMENTS.offset("gyro")
@@ -35,16 +42,26 @@ OUT_ACCEL = MEASUREMENTS.offset("accel")
 OUT_GPS_T = MEASUREMENTS.offset("gps_t")
 OUT_GPS_POS = MEASUREMENTS.offset("gps_pos")
 OUT_GPS_VEL = MEASUREMENTS.offset("gps_vel")
+OUT_GPS_FIX_TYPE = MEASUREMENTS.offset("gps_fix_type")
+OUT_GPS_SATS = MEASUREMENTS.offset("gps_sats")
+OUT_GPS_EPH_M = MEASUREMENTS.offset("gps_eph_m")
+OUT_GPS_EPV_M = MEASUREMENTS.offset("gps_epv_m")
 OUT_ATT_T = MEASUREMENTS.offset("att_t")
 OUT_ATT = MEASUREMENTS.offset("att")
 OUT_BARO_T = MEASUREMENTS.offset("baro_t")
 OUT_BARO_ALT = MEASUREMENTS.offset("baro_alt")
+OUT_MAG_T = MEASUREMENTS.offset("mag_t")
+OUT_MAG = MEASUREMENTS.offset("mag")
 N_OUT = MEASUREMENTS.size
 
 NEW_IMU = 1
 NEW_GPS = 2
 NEW_ATT = 4
 NEW_BARO = 8
+NEW_MAG = 16
+
+#: MAVLink GPS_FIX_TYPE_3D_FIX: what the receiver reports with every fix it delivers
+GPS_FIX_3D = 3
 
 
 class ImuSample(NamedTuple):
@@ -77,3 +94,12 @@ class BaroSample(NamedTuple):
 
     t_s: float
     alt_m: float
+
+
+class MagSample(NamedTuple):
+    """The magnetic field in the body, FLU [gauss]: the earth's field at home
+    (:mod:`heli_common.magnetic`) rotated into the body, ``R^T m_nwu``, plus the sensor's
+    errors (a hard-iron offset, noise)."""
+
+    t_s: float
+    field_flu_gauss: Vec3

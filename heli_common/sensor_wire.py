@@ -1,12 +1,20 @@
 """What the sim link can carry of a sensor sample, exactly, in compiled code.
 
 The plant sends its sensors in the MAVLink messages an autopilot reads in HIL: HIL_SENSOR
-(IMU and barometric altitude as float32, body FRD), HIL_GPS (latitude and longitude in
-1e-7 deg, altitude in mm, velocity in cm/s) and AHRS2 (the attitude source's Euler angles,
-float32). A real receiver reports at that resolution too. The in-process loop rounds its
-samples with :func:`to_wire_resolution`, the plant encodes with :func:`gps_to_wire` and the
-autopilot decodes with :func:`gps_from_wire`: the estimator then gets the same numbers,
-bit for bit, whether it runs in the plant's process or across the link.
+(IMU, magnetometer [gauss] and barometric altitude as float32, body FRD), HIL_GPS (latitude
+and longitude in 1e-7 deg, altitude in mm, velocity in cm/s, and the receiver's status:
+fix type, satellites, and its position accuracies ``eph``/``epv``) and AHRS2 (the attitude
+source's Euler angles, float32). A real receiver reports at that resolution too. The
+in-process loop rounds its samples with :func:`to_wire_resolution`, the plant encodes with
+:func:`gps_to_wire` and :func:`gps_status_to_wire` and the autopilot decodes with
+:func:`gps_from_wire` and :func:`gps_status_from_wire`: the estimator then gets the same
+numbers, bit for bit, whether it runs in the plant's process or across the link.
+
+HIL_GPS ``eph`` and ``epv`` carry the receiver's 1-sigma horizontal (per axis) and vertical
+position accuracy in centimetres (uint16), as PX4's simulator bridge reads them
+(``SimulatorMavlink::handle_message_hil_gps``: ``gps.eph = (float)hil_gps.eph * 1e-2f; //
+cm -> m``); the MAVLink common.xml text calls them HDOP/VDOP * 100, which no simulator
+fills. ``UINT16_MAX`` means unknown (decoded as NaN); a larger accuracy is sent as 65534 cm.
 
 GPS positions are about a home (``home`` array: :data:`HOME_LAT_DEG`, :data:`HOME_LON_DEG`,
 :data:`HOME_ALT_M`, :data:`HOME_M_PER_DEG_LAT`, :data:`HOME_M_PER_DEG_LON`), with the same
@@ -28,13 +36,19 @@ from heli_common.measurements import (
     NEW_BARO,
     NEW_GPS,
     NEW_IMU,
+    NEW_MAG,
     OUT_ACCEL,
     OUT_ATT,
     OUT_BARO_ALT,
+    OUT_GPS_EPH_M,
+    OUT_GPS_EPV_M,
+    OUT_GPS_FIX_TYPE,
     OUT_GPS_POS,
+    OUT_GPS_SATS,
     OUT_GPS_T,
     OUT_GPS_VEL,
     OUT_GYRO,
+    OUT_MAG,
 )
 from heli_common.state import FloatArray
 
@@ -53,12 +67,18 @@ HOME_M_PER_DEG_LAT = HOME.offset("m_per_deg_lat")
 HOME_M_PER_DEG_LON = HOME.offset("m_per_deg_lon")
 N_HOME = HOME.size
 
-# HIL_SENSOR.fields_updated: the IMU's six (acc x y z, gyro x y z) and pressure_alt
+# HIL_SENSOR.fields_updated (MAVLink HIL_SENSOR_UPDATED_FLAGS): the IMU's six (acc x y z,
+# gyro x y z), the magnetometer's three (xmag, ymag, zmag: bits 6-8) and pressure_alt
 IMU_FIELDS = 0x3F
+MAG_FIELDS = 0x1C0
 BARO_FIELD = 1 << 11
 
 INT16_MAX = 32767
 INT32_MAX = 2**31 - 1
+UINT8_MAX = 255
+# HIL_GPS eph/epv [cm]: UINT16_MAX is "unknown", so a known accuracy stops one below it
+ACCURACY_UNKNOWN = 0xFFFF
+ACCURACY_CM_MAX = 0xFFFE
 
 
 def home_array(home: GeoPoint) -> FloatArray:
@@ -111,6 +131,43 @@ def gps_from_wire(
 
 
 @njit
+def _accuracy_to_wire(acc_m: float) -> int:
+    if math.isnan(acc_m):
+        return ACCURACY_UNKNOWN
+    return int(max(0.0, min(float(ACCURACY_CM_MAX), round(acc_m * 100.0))))
+
+
+@njit
+def _accuracy_from_wire(acc_cm: int) -> float:
+    if acc_cm == ACCURACY_UNKNOWN:
+        return math.nan
+    return acc_cm * 0.01
+
+
+@njit
+def gps_status_to_wire(
+    fix_type: float, satellites: float, eph_m: float, epv_m: float
+) -> tuple[int, int, int, int]:
+    """(fix_type, satellites_visible, eph [cm], epv [cm]) of the receiver's status, as HIL_GPS
+    carries them (uint8, uint8, uint16, uint16)."""
+    return (
+        int(max(0.0, min(float(UINT8_MAX), fix_type))) if math.isfinite(fix_type) else 0,
+        int(max(0.0, min(float(UINT8_MAX), satellites))) if math.isfinite(satellites) else UINT8_MAX,
+        _accuracy_to_wire(eph_m),
+        _accuracy_to_wire(epv_m),
+    )
+
+
+@njit
+def gps_status_from_wire(
+    fix_type: int, satellites: int, eph_cm: int, epv_cm: int
+) -> tuple[float, float, float, float]:
+    """The inverse of :func:`gps_status_to_wire`: (fix type, satellites, eph [m], epv [m]);
+    an accuracy of UINT16_MAX (unknown) is NaN."""
+    return float(fix_type), float(satellites), _accuracy_from_wire(eph_cm), _accuracy_from_wire(epv_cm)
+
+
+@njit
 def _f32(out: FloatArray, i: int, n: int) -> None:
     for k in range(i, i + n):
         out[k] = np.float32(out[k])
@@ -119,11 +176,14 @@ def _f32(out: FloatArray, i: int, n: int) -> None:
 @njit
 def to_wire_resolution(out: FloatArray, mask: int, home: FloatArray) -> None:
     """Round the new samples of ``out`` (the measurement layout) to what the sim link
-    carries: float32 for the IMU, attitude and baro, HIL_GPS's integers for a fix. The
-    times are kept (the link carries them in microseconds)."""
+    carries: float32 for the IMU, magnetometer, attitude and baro, HIL_GPS's integers for a
+    fix and the receiver's status. The times are kept (the link carries them in
+    microseconds)."""
     if mask & NEW_IMU:
         _f32(out, OUT_GYRO, 3)
         _f32(out, OUT_ACCEL, 3)
+    if mask & NEW_MAG:
+        _f32(out, OUT_MAG, 3)
     if mask & NEW_ATT:
         _f32(out, OUT_ATT, 3)
     if mask & NEW_BARO:
@@ -133,3 +193,7 @@ def to_wire_resolution(out: FloatArray, mask: int, home: FloatArray) -> None:
         vel = out[OUT_GPS_VEL : OUT_GPS_VEL + 3]
         la, lo, al, vn, ve, vd = gps_to_wire(pos, vel, home)
         gps_from_wire(la, lo, al, vn, ve, vd, home, pos, vel)
+        ft, ns, eh, ev = gps_status_to_wire(out[OUT_GPS_FIX_TYPE], out[OUT_GPS_SATS], out[OUT_GPS_EPH_M],
+                                            out[OUT_GPS_EPV_M])  # fmt: skip
+        (out[OUT_GPS_FIX_TYPE], out[OUT_GPS_SATS], out[OUT_GPS_EPH_M],
+         out[OUT_GPS_EPV_M]) = gps_status_from_wire(ft, ns, eh, ev)  # fmt: skip

@@ -1,16 +1,18 @@
-"""The vehicle's sensors, as configured: IMU, GPS, an attitude source and a barometer.
+"""The vehicle's sensors, as configured: IMU, GPS, an attitude source, a barometer and a
+magnetometer.
 TOML -> frozen dataclasses, in the pattern of :mod:`heli_common.world`.
 
 Every sensor is off by default. A sensor that is off is *ideal*: it delivers the truth at
 every plant step, with no rate, latency, noise or bias, so an empty file (or no sensors
 configured) gives the autopilot the true state exactly. Switching a sensor ``on`` applies
 its error model: its own sample rate, latency (GPS, attitude), white noise, bias and bias
-random walk, GPS Gauss-Markov wander, barometer drift. The failures (``freeze``, a step
-bias from ``fault_start_s``, GPS loss with ``gps.disabled``) act whether the error model
-is on or not. The models themselves live in :mod:`heli_plant.sensors`; the numbers,
-conventions and sources are in ``docs/sensors.md``.
+random walk, GPS Gauss-Markov wander, barometer drift, the magnetometer's hard-iron
+offset. The failures (``freeze``, a step bias from ``fault_start_s``, GPS loss with
+``gps.disabled``) act whether the error model is on or not. The models themselves live in
+:mod:`heli_plant.sensors`; the numbers, conventions and sources are in ``docs/sensors.md``.
 
-Units are SI; frames earth NWU, body FLU (:mod:`heli_common.measurements`). A noise
+Units are SI but the magnetic field's, gauss (as MAVLink and the data sheets give it);
+frames earth NWU, body FLU (:mod:`heli_common.measurements`). A noise
 *density* ``N`` (``_rthz``: per root hertz) becomes a per-sample standard deviation
 ``N sqrt(rate_hz)``; a bias random-walk intensity ``K`` (``_rts``: per root second) makes
 the bias variance grow as ``K^2 t``.
@@ -73,6 +75,9 @@ class Gps:
     wander_tau_s: float = spec("s", 0.0, 1e6, lo_open=True, default=60.0)
     vel_noise_m_s: float = spec("m/s", 0.0, 100.0, default=0.0)
     disabled: bool = spec(default=False)
+    # what the receiver reports while it has a fix (HIL_GPS satellites_visible); the
+    # accuracies it reports (eph, epv) follow from the noise numbers above
+    satellites: int = spec("", 0, 40, default=14)
     # failures, from fault_start_s (validity time) on
     freeze: bool = spec(default=False)
     fault_start_s: float = spec("s", 0.0, 1e6, default=0.0)
@@ -109,6 +114,26 @@ class Baro:
 
 
 @dataclass(frozen=True)
+class Mag:
+    """Magnetometer (body FLU, gauss): the earth's field at home (:mod:`heli_common.magnetic`,
+    a tilted dipole) rotated into the body + a constant hard-iron offset + white noise,
+    sampled at ``rate_hz``, no latency. ``hard_iron_gauss`` is the offset in the sensor's
+    (body FLU) frame that a compass calibration removes: configure what is left after it."""
+
+    on: bool = spec(default=False)
+    rate_hz: float = spec("Hz", 0.0, 1e4, lo_open=True, default=100.0)
+    noise_gauss: float = spec("gauss", 0.0, 10.0, default=0.0)
+    hard_iron_gauss: Vec3 = spec("gauss", -10.0, 10.0, default=ZERO3)
+    freeze: bool = spec(default=False)
+    fault_start_s: float = spec("s", 0.0, 1e6, default=0.0)
+    step_gauss: Vec3 = spec("gauss", -100.0, 100.0, default=ZERO3)
+
+
+#: the sensor tables of :class:`Sensors`, in order
+SENSOR_TABLES = ("imu", "gps", "attitude", "baro", "mag")
+
+
+@dataclass(frozen=True)
 class Sensors:
     name: str = spec(default="ideal")
     seed: int = spec("", 0, SEED_MAX, default=0)
@@ -116,6 +141,7 @@ class Sensors:
     gps: Gps = spec(default=Gps())
     attitude: Attitude = spec(default=Attitude())
     baro: Baro = spec(default=Baro())
+    mag: Mag = spec(default=Mag())
     source: str = spec(default="")  # the file it came from (filled in by load)
 
     @property
@@ -125,20 +151,21 @@ class Sensors:
 
     @property
     def errors_on(self) -> bool:
-        return self.imu.on or self.gps.on or self.attitude.on or self.baro.on
+        return self.imu.on or self.gps.on or self.attitude.on or self.baro.on or self.mag.on
 
     @property
     def faults_on(self) -> bool:
-        i, g, a, b = self.imu, self.gps, self.attitude, self.baro
+        i, g, a, b, m = self.imu, self.gps, self.attitude, self.baro, self.mag
         return (i.freeze or any(i.gyro_step_rad_s) or any(i.accel_step_m_s2) or g.disabled or g.freeze
-                or any(g.step_m) or a.freeze or any(a.step_rad) or b.freeze or b.step_m != 0.0)  # fmt: skip
+                or any(g.step_m) or a.freeze or any(a.step_rad) or b.freeze or b.step_m != 0.0
+                or m.freeze or any(m.step_gauss))  # fmt: skip
 
     def describe(self) -> dict[str, object]:
         """What is configured, for a run summary (only the tables that differ from ideal)."""
         out: dict[str, object] = {"name": self.name, "seed": self.seed}
         if self.source:
             out["file"] = self.source
-        for part in ("imu", "gps", "attitude", "baro"):
+        for part in SENSOR_TABLES:
             value = getattr(self, part)
             if value != type(value)():
                 out[part] = dataclasses.asdict(value)
@@ -151,7 +178,7 @@ IDEAL = Sensors()
 def validate(s: Sensors) -> Sensors:
     """``s`` itself if every field is inside its declared range (what :func:`load` checks
     for a file); ValueError naming the field otherwise (for configs built in code)."""
-    for part in ("imu", "gps", "attitude", "baro"):
+    for part in SENSOR_TABLES:
         table = getattr(s, part)
         for f in dataclasses.fields(table):
             _check_field(type(table), f.name, getattr(table, f.name), f"{part}.{f.name}")
@@ -163,10 +190,13 @@ def validate(s: Sensors) -> Sensors:
 def _check_field(cls: type, name: str, value: Any, where: str) -> None:
     meta = next(f.metadata for f in dataclasses.fields(cls) if f.name == name)
     values = value if isinstance(value, tuple) else (value,)
-    if typing.get_type_hints(cls)[name] is bool:
+    hint = typing.get_type_hints(cls)[name]
+    if hint is bool:
         if not isinstance(value, bool):
             raise ValueError(f"{where} must be true or false, got {value!r}")
         return
+    if hint is int and (isinstance(value, bool) or not isinstance(value, int)):
+        raise ValueError(f"{where} must be an integer, got {value!r}")
     lo, hi = meta.get("lo"), meta.get("hi")
     for v in values:
         ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
@@ -184,6 +214,7 @@ def _check_field(cls: type, name: str, value: Any, where: str) -> None:
 _DEG = math.pi / 180.0
 _UG = 1e-6 * G0_M_S2  # one micro-g [m/s^2]
 _MG = 1e-3 * G0_M_S2
+_MGAUSS = 1e-3  # one milligauss [gauss]
 _HOUR_S = 3600.0
 
 
@@ -203,10 +234,13 @@ def _walk_per_hour(bias_after_1h: float) -> float:
 #:                0.2 m white at 50 Hz (ArduPilot's SIM_BARO_RND default).
 #:   imu-consumer MPU-6000 class IMU at 100 Hz: gyro 0.005 deg/s/rtHz, accel 400 ug/rtHz; a
 #:                residual bias after calibration of 0.2 deg/s and 20 mg, gyro bias walk
-#:                reaching 10 deg/h after an hour, accel bias walk 1 mg after an hour.
+#:                reaching 10 deg/h after an hour, accel bias walk 1 mg after an hour; an
+#:                HMC5883L class magnetometer at 75 Hz (its highest continuous rate) with its
+#:                2 mG noise floor and a residual hard iron after calibration of 5 mG.
 #:   noisy        a stress case: 4x the IMU densities, the MPU-6000's untrimmed accel bias
 #:                bounds (50/50/80 mg), 5 m CEP GPS with 200 ms lag, an attitude source with
-#:                1/1/2 deg noise and a bias, 0.5 m baro with 1 mm/s drift.
+#:                1/1/2 deg noise and a bias, 0.5 m baro with 1 mm/s drift, a magnetometer
+#:                with 4x the HMC5883L's noise and a 30 mG residual hard iron.
 PRESETS: dict[str, dict[str, Any]] = {
     "gps-typical": {
         "name": "gps-typical",
@@ -228,6 +262,10 @@ PRESETS: dict[str, dict[str, Any]] = {
             "accel_bias_m_s2": [20.0 * _MG, -20.0 * _MG, 20.0 * _MG],
             "gyro_walk_rad_s_rts": _walk_per_hour(10.0 * _DEG / _HOUR_S),
             "accel_walk_m_s2_rts": _walk_per_hour(1.0 * _MG),
+        },
+        "mag": {
+            "on": True, "rate_hz": 75.0, "noise_gauss": 2.0 * _MGAUSS,
+            "hard_iron_gauss": [5.0 * _MGAUSS, -5.0 * _MGAUSS, 5.0 * _MGAUSS],
         },
     },
     "noisy": {
@@ -252,6 +290,10 @@ PRESETS: dict[str, dict[str, Any]] = {
             "bias_rad": [0.5 * _DEG, -0.5 * _DEG, 2.0 * _DEG],
         },
         "baro": {"on": True, "rate_hz": 50.0, "noise_m": 0.5, "drift_m_s": 0.001},
+        "mag": {
+            "on": True, "rate_hz": 75.0, "noise_gauss": 8.0 * _MGAUSS,
+            "hard_iron_gauss": [30.0 * _MGAUSS, -30.0 * _MGAUSS, 30.0 * _MGAUSS],
+        },
     },
 }  # fmt: skip
 

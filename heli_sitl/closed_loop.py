@@ -20,7 +20,8 @@ from typing import Any
 import numpy as np
 
 from autopilot.estimation.config import EstimatorConfig
-from autopilot.estimation.kf import K_N_BUF, N_EST_LOG, est_init, est_tick, log_tick, make_params, state_size
+from autopilot.estimation.log import N_EST_LOG
+from autopilot.estimation.nav import make_nav_params, nav_init, nav_log, nav_state_size, nav_tick, nav_truth
 from autopilot.metrics import FlightRecord
 from autopilot.pid.controller import PIDConstants, PIDController, pid_kernel
 from autopilot.pid.gains import PidGains, default_pid_gains
@@ -44,6 +45,7 @@ from heli_plant.model import Plant, accept_pitches
 from heli_plant.rotor import N_ROTOR, RotorConstants
 from heli_plant.rotor import OFF as ROTOR_OFF
 from heli_plant.sensors.sensing import Sensing, sense
+from heli_plant.sensors.truth import imu_bias_truth
 from heli_plant.world.model import (
     WS_AIR,
     WS_PITCH,
@@ -80,15 +82,17 @@ class SimOptions:
 def _observe(
     i: int, t: FloatArray, x: FloatArray, held: FloatArray, c: PlantConstants, in_world: bool,
     air: AirConstants, wp: FloatArray, ws: FloatArray, snp: FloatArray, sns: FloatArray,
-    meas: FloatArray, home: FloatArray, eparams: FloatArray, est: FloatArray, use_baro: bool,
+    meas: FloatArray, home: FloatArray, eparams: FloatArray, est: FloatArray,
     x_hats: FloatArray, est_log: FloatArray, loop_s: FloatArray, g: RotorConstants,
 ) -> FloatArray:  # fmt: skip
     """Tick ``i``'s state for the controller, flying from sensors: the estimate from what
     the sensors measured at t[i] (logged in ``x_hats[i]`` and ``est_log[i]``)."""
     resting = i == 0 or loop_s[LS_ON_GROUND] != 0.0
     mask = sense(t[i], x, held, c, resting, in_world, air, wp, ws, snp, sns, meas, home, g)
-    gps = est_tick(eparams, est, t[i], meas, mask, use_baro, x_hats[i])
-    log_tick(est, gps, est_log[i])
+    gps = nav_tick(eparams, est, t[i], meas, mask, x_hats[i])
+    nav_log(eparams, est, gps, est_log[i])
+    gyro_bias, accel_bias = imu_bias_truth(t[i], snp, sns)
+    nav_truth(eparams, est, x, gyro_bias, accel_bias, est_log[i])
     x_hat: FloatArray = x_hats[i]
     return x_hat
 
@@ -150,7 +154,6 @@ def _run_ticks(
     home: FloatArray,
     eparams: FloatArray,
     est: FloatArray,
-    use_baro: bool,
     x_hats: FloatArray,
     est_log: FloatArray,
     loop_s: FloatArray,
@@ -167,7 +170,7 @@ def _run_ticks(
         xc = x
         if sensing:
             xc = _observe(i, t, x, held, c, in_world, air, wp, ws, snp, sns, meas, home, eparams, est,
-                          use_baro, x_hats, est_log, loop_s, g)  # fmt: skip
+                          x_hats, est_log, loop_s, g)  # fmt: skip
         if use_pid:
             pid_kernel(kp, pid_state, xc, refs[i], False, out, diag)
         else:
@@ -237,7 +240,7 @@ def simulate(
             ctrl.constants, state, plant.constants, plant.lo, plant.hi, held, x, refs, t, k0, k1, n,
             plant.substeps, xs, us, diags, plant.world is not None, w.air, w.wp, ws, w.servo_p,
             servo_s, w.dryden, airs, applied, sn.on, sn.snp, sns, meas, sn.home, sn.eparams, est,
-            sn.use_baro, sn.x_hats, sn.log, loop_s, use_pid, pid.constants, pid_state, g, rotors,
+            sn.x_hats, sn.log, loop_s, use_pid, pid.constants, pid_state, g, rotors,
         )  # fmt: skip
 
     def user_ticks(u: UserController, k0: int, k1: int, held: FloatArray, ws: FloatArray, servo_s: FloatArray,
@@ -250,7 +253,7 @@ def simulate(
             xc = x
             if sn.on:
                 xc = _observe(i, t, x, held, plant.constants, in_world, w.air, w.wp, ws, sn.snp, sns,
-                              meas, sn.home, sn.eparams, est, sn.use_baro, sn.x_hats, sn.log, loop_s,
+                              meas, sn.home, sn.eparams, est, sn.x_hats, sn.log, loop_s,
                               g)  # fmt: skip
             out = u.update(float(t[i]), xc, refs[i])
             xs[i] = x
@@ -314,7 +317,6 @@ class SensingArrays:
     home: FloatArray
     eparams: FloatArray
     est: FloatArray
-    use_baro: bool
     x_hats: FloatArray
     log: FloatArray
 
@@ -323,23 +325,23 @@ class SensingArrays:
         s = plant.sensing
         if s is None:
             return cls.off()
-        eparams = make_params(cfg, rate_hz)
+        eparams = make_nav_params(cfg, rate_hz, plant.home)
         m = s.model
         # the plant sampled its sensors at t = 0 when it was built; the loop samples them
         # itself, tick by tick, from a fresh start of the same configuration
         fresh = Sensing.build(m.config, m.step_s, m.gravity_m_s2, plant.home)
-        est = np.zeros(state_size(int(eparams[K_N_BUF])))
+        est = np.zeros(nav_state_size(eparams))
         # started from the spawn state as the autopilot process receives it (float32 on the
         # sim link), so that a lockstep flight's estimator starts from the very same numbers
-        est_init(eparams, est, as_received(plant.x))
+        nav_init(eparams, est, as_received(plant.x))
         return cls(True, fresh.model.params, fresh.model.state, fresh.meas, fresh.home, eparams, est,
-                   cfg.use_baro, np.full((n + 1, plant.x.size), np.nan),
+                   np.full((n + 1, plant.x.size), np.nan),
                    np.full((n + 1, N_EST_LOG), np.nan))  # fmt: skip
 
     @classmethod
     def off(cls) -> SensingArrays:
         z = np.zeros(1)
-        return cls(False, z, z, np.zeros(N_OUT), np.zeros(N_HOME), z, z, False, np.zeros((1, N_STATE)),
+        return cls(False, z, z, np.zeros(N_OUT), np.zeros(N_HOME), z, z, np.zeros((1, N_STATE)),
                    np.zeros((1, N_EST_LOG)))  # fmt: skip
 
     def first_estimate(self, plant: Plant) -> FloatArray:
@@ -349,11 +351,11 @@ class SensingArrays:
         meas, sns, est, x_hat = self.meas.copy(), self.sns.copy(), self.est.copy(), np.empty(N_STATE)
         mask = sense(0.0, plant.x, plant.u, plant.constants, True, plant.world is not None, w.air, w.wp,
                      w.ws.copy(), self.snp, sns, meas, self.home, g)  # fmt: skip
-        est_tick(self.eparams, est, 0.0, meas, mask, self.use_baro, x_hat)
+        nav_tick(self.eparams, est, 0.0, meas, mask, x_hat)
         return x_hat
 
     def args(self) -> tuple[object, ...]:
         """The loop's sensing arguments, in order (its own arrays)."""
-        return (self.on, self.snp, self.sns, self.meas, self.home, self.eparams, self.est, self.use_baro,
+        return (self.on, self.snp, self.sns, self.meas, self.home, self.eparams, self.est,
                 self.x_hats, self.log)  # fmt: skip
 

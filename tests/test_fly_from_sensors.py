@@ -127,25 +127,26 @@ def test_sensor_study_finds_where_gps_errors_cost_half_a_metre(tmp_path) -> None
 
 def test_a_resent_datagram_is_not_fused_twice() -> None:
     """Lockstep re-sends a state it got no answer to; if the copy arrives with the next
-    state, its GPS fix and baro sample must not count as new again (a race seen under load:
-    the fix was fused twice and lockstep parted from in-process by 5 mm)."""
+    state, its GPS fix, baro and magnetometer samples must not count as new again (a race
+    seen under load: the fix was fused twice and lockstep parted from in-process by 5 mm)."""
     from autopilot.links.mavlink_sim import Measurements
     from heli_common.defaults import HOME
     from heli_common.mavlink.fast import SimCodec
     from heli_common.mavlink.sim_protocol import StateSample
-    from heli_common.measurements import NEW_BARO, NEW_IMU
-    from heli_common.sensor_wire import BARO_FIELD, IMU_FIELDS
+    from heli_common.measurements import NEW_BARO, NEW_IMU, NEW_MAG
+    from heli_common.sensor_wire import BARO_FIELD, IMU_FIELDS, MAG_FIELDS
 
     codec = SimCodec(1, 51)
     imu = (0.0, 0.0, -9.81, 0.0, 0.0, 0.0)
     fix = (10_000, 473_977_420, 85_455_940, 500_000, 0, 0, 0)
-    k = codec.encode_sensors(10_000, imu, 5.0, IMU_FIELDS | BARO_FIELD, fix, None)
+    k = codec.encode_sensors(10_000, imu, 5.0, IMU_FIELDS | BARO_FIELD | MAG_FIELDS, fix, None,
+                             mag=(0.2, 0.05, 0.44))  # fmt: skip
     k1 = codec.encode_sensors(20_000, imu, 5.0, IMU_FIELDS, None, None)
     m = Measurements(HOME)
     s = StateSample(0, np.zeros(12))
     for msg in codec.decode(k):
         assert m.feed(msg)
-    assert m.take(s).meas_mask == NEW_IMU | NEW_GPS | NEW_BARO
+    assert m.take(s).meas_mask == NEW_IMU | NEW_GPS | NEW_BARO | NEW_MAG
     for msg in codec.decode(k + k1):  # the copy of k, then k + 1, in one read
         assert m.feed(msg)
     assert m.take(s).meas_mask == NEW_IMU  # only what k + 1 brought

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from autopilot import control, reference, runner
-from autopilot.estimation import kf
+from autopilot.estimation import ins, kf, nav
+from autopilot.estimation import log as est_log
 from autopilot.estimation.config import EstimatorConfig
 from autopilot.pid import controller as pid
 from autopilot.tlc import controller as tlc
@@ -54,7 +55,13 @@ CASES: list[tuple[Layout, dict[str, int], int]] = [
     (kf.PARAMS, _named(kf, "K_"), kf.N_PARAMS),
     (kf.FILTER, _named(kf, "E_", ("E_HIST",)), kf.N_FILTER),
     (kf.RECORD, _named(kf, "R_"), kf.N_REC),
-    (kf.EST_LOG, _named(kf, "L_"), kf.N_EST_LOG),
+    (est_log.EST_LOG, _named(est_log, "L_"), est_log.N_EST_LOG),
+    (ins.ERR, _named(ins, "D_"), ins.N_ERR),
+    (ins.NOMINAL, _named(ins, "N_", ("N_ERR", "N_NAV", "N_COV", "N_NOM", "N_PARAMS", "N_FILTER", "N_REC")), ins.N_NOM),
+    (ins.PARAMS, _named(ins, "K_"), ins.N_PARAMS),
+    (ins.FILTER, _named(ins, "E_", ("E_HIST",)), ins.N_FILTER),
+    (ins.RECORD, _named(ins, "R_"), ins.N_REC),
+    (nav.HEADER, _named(nav, "H_"), nav.N_HEADER),
     (kf._INNOV, _named(kf, "_IN_"), kf._N_INNOV),
     (reference.REFERENCE, {"POS_0": reference.POS_0, "VEL_0": reference.VEL_0, "ACC_0": reference.ACC_0},
      reference.N_REF),
@@ -85,7 +92,7 @@ def test_blocks_are_contiguous_named_once_and_sized(layout: Layout, named: dict[
 def test_recorder_row_is_its_layout() -> None:
     row = runner.Recorder.ROW
     assert runner.Recorder.WIDTH == row.end == row.size
-    assert row.size_of("est") == kf.N_EST_LOG and row.size_of("diag") == control.N_DIAG
+    assert row.size_of("est") == est_log.N_EST_LOG and row.size_of("diag") == control.N_DIAG
 
 
 def test_nested_blocks_take_their_size_from_the_inner_layout() -> None:
@@ -135,8 +142,16 @@ def test_estimator_arrays_have_the_layout_sizes_and_the_log_is_written_whole() -
     est = kf.Estimator(EstimatorConfig(), np.zeros(N_STATE), rate_hz=100.0)
     assert est.params.shape == (kf.N_PARAMS,)
     assert est.state.shape == (kf.N_FILTER + est.n_buf * kf.N_REC,)
-    assert len(kf.EST_LOG_COLUMNS) == kf.N_EST_LOG == len(set(kf.EST_LOG_COLUMNS))
+    assert len(est_log.EST_LOG_COLUMNS) == est_log.N_EST_LOG == len(set(est_log.EST_LOG_COLUMNS))
     sentinel = 1234.5
-    row = np.full(kf.N_EST_LOG, sentinel)
+    row = np.full(est_log.N_EST_LOG, sentinel)
     kf.log_tick(est.state, kf.ACCEPTED, row)
     assert not np.any(row == sentinel), "a log column log_tick never writes"
+    # the navigation filter's: its arrays as the layouts say, and its log written whole too
+    params = nav.make_nav_params(EstimatorConfig(attitude="ins"), 100.0, GeoPoint(47.4, 8.5, 400.0))
+    assert params.shape == (nav.N_HEADER + ins.N_PARAMS,)
+    st = nav.nav_state(params, np.zeros(N_STATE))
+    assert st.shape == (ins.N_FILTER + int(params[nav.N_HEADER + ins.K_N_BUF]) * ins.N_REC,)
+    row[:] = sentinel
+    nav.nav_log(params, st, ins.NO_FIX, row)
+    assert not np.any(row == sentinel), "a log column the navigation filter's log_tick never writes"

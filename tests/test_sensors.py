@@ -51,6 +51,7 @@ from heli_plant.sensors.model import (
     NEW_BARO,
     NEW_GPS,
     NEW_IMU,
+    NEW_MAG,
     OUT_ACCEL,
     OUT_ATT,
     OUT_BARO_ALT,
@@ -60,10 +61,12 @@ from heli_plant.sensors.model import (
     OUT_GPS_VEL,
     OUT_GYRO,
     OUT_IMU_T,
+    SNP_MAG_FIELD,
     SNP_SEED,
     SensorModel,
     earth_accel_from_derivative,
     earth_accel_from_states,
+    magnetic_field_flu,
     sensor_parameters,
     sensor_state,
     sensor_step,
@@ -144,7 +147,8 @@ N_WHITE = 100_000
 @pytest.fixture(scope="module")
 def white_run() -> FloatArray:
     rec, masks = _run(WHITE, 0.01, N_WHITE, _rest(5.0))
-    assert np.all(masks == NEW_IMU | NEW_GPS | NEW_ATT | NEW_BARO)  # every sensor at the plant rate
+    # every sensor at the plant rate (the magnetometer is off: ideal, every step)
+    assert np.all(masks == NEW_IMU | NEW_GPS | NEW_ATT | NEW_BARO | NEW_MAG)
     return rec
 
 
@@ -363,14 +367,14 @@ def test_same_seed_same_samples_other_seed_differs() -> None:
     b = _samples(SensorModel(preset("noisy"), 0.01, G), 400)
     c = _samples(SensorModel(dataclasses.replace(preset("noisy"), seed=2), 0.01, G), 400)
     assert a == b
-    for i in range(4):  # every sensor's values change with the seed
+    for i in range(5):  # every sensor's values change with the seed
         pairs = [(s[i], t[i]) for s, t in zip(a, c, strict=True) if s[i] is not None]
         assert pairs and all(s != t for s, t in pairs)
 
 
 def test_streams_do_not_collide_with_the_world() -> None:
     ids = [getattr(model, n) for n in dir(model) if n.startswith("STREAM_") and n != "STREAM_SENSOR_BASE"]
-    assert len(ids) == len(set(ids)) == 10
+    assert len(ids) == len(set(ids)) == 11
     assert min(ids) >= STREAM_SENSOR_BASE == 16
 
 
@@ -442,13 +446,15 @@ def test_every_sensor_off_reads_the_truth_exactly() -> None:
         a = rng.normal(size=3)
         s = m.step(k * 0.01, x, a)
         assert s.imu is not None and s.gps is not None and s.attitude is not None and s.baro is not None
-        assert s.imu.t_s == s.gps.t_s == s.attitude.t_s == s.baro.t_s == k * 0.01
+        assert s.mag is not None
+        assert s.imu.t_s == s.gps.t_s == s.attitude.t_s == s.baro.t_s == s.mag.t_s == k * 0.01
         assert s.imu.gyro_flu_rad_s == tuple(x[OMEGA])
         assert s.imu.accel_flu_m_s2 == specific_force_flu(x, a, G)
         assert s.gps.pos_nwu_m == tuple(x[POS])
         assert s.gps.vel_nwu_m_s == velocity_nwu(x)
         assert s.attitude.euler_rad == tuple(x[EULER])
         assert s.baro.alt_m == x[Z_U]
+        assert s.mag.field_flu_gauss == magnetic_field_flu(x, m.params[SNP_MAG_FIELD : SNP_MAG_FIELD + 3])
 
 
 def test_gps_disable_stops_fixes() -> None:

@@ -35,6 +35,17 @@ import numpy as np
 from scipy.stats import chi2
 
 from autopilot.estimation.config import EstimatorConfig
+from autopilot.estimation.log import (
+    L_BIAS,
+    L_DIVERGED,
+    L_GPS_STATUS,
+    L_INNOV,
+    L_NIS,
+    L_SD_ATT,
+    L_SD_POS,
+    L_SD_VEL,
+    L_SINCE_FIX,
+)
 from heli_common.jit import njit
 from heli_common.kinematics import euler_rates, rot_body_to_earth, wrap_pi
 from heli_common.layout import Layout
@@ -764,32 +775,6 @@ def est_tick(
     return status
 
 
-#: what :func:`log_tick` writes per tick (est.csv): the filter's 1-sigma position and
-#: velocity (earth NWU), its acceleration bias, the GPS status of the tick (NO_FIX, ACCEPTED,
-#: REJECTED, RESET, ...), and for a tick with a fix its NIS and position innovation at the
-#: fix's validity time; the time since the last accepted fix
-EST_LOG = Layout(
-    "estimator log",
-    ("sd_pos", N_AXES), ("sd_vel", N_AXES), ("bias", N_AXES), ("gps_status", 1), ("nis", 1),
-    ("innov", N_AXES), ("since_fix_s", 1),
-)  # fmt: skip
-L_SD_POS = EST_LOG.offset("sd_pos")
-L_SD_VEL = EST_LOG.offset("sd_vel")
-L_BIAS = EST_LOG.offset("bias")
-L_GPS_STATUS = EST_LOG.offset("gps_status")
-L_NIS = EST_LOG.offset("nis")
-L_INNOV = EST_LOG.offset("innov")
-L_SINCE_FIX = EST_LOG.offset("since_fix_s")
-N_EST_LOG = EST_LOG.size
-_AXIS_SUFFIX = ("n", "w", "u")
-#: est.csv's column names: a block's name, suffixed with the axis where it has one per axis
-EST_LOG_COLUMNS = tuple(
-    name if EST_LOG.size_of(name) == 1 else f"{name}_{_AXIS_SUFFIX[i]}"
-    for name in EST_LOG.names
-    for i in range(EST_LOG.size_of(name))
-)
-
-
 @njit
 def log_tick(st: FloatArray, gps_status: int, row: FloatArray) -> None:
     """One row of :data:`EST_LOG_COLUMNS` for the tick just estimated."""
@@ -804,6 +789,9 @@ def log_tick(st: FloatArray, gps_status: int, row: FloatArray) -> None:
     for a in range(N_AXES):
         row[L_INNOV + a] = st[E_INNOV_POS + a] if fix else math.nan
     row[L_SINCE_FIX] = st[E_T] - st[E_T_FIX]
+    # the navigation filter's own columns: this filter has no such states
+    row[L_SD_ATT:] = math.nan
+    row[L_DIVERGED] = 0.0
 
 
 # ------------------------------------------------------------------ the Python wrapper

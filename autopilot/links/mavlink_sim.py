@@ -26,24 +26,39 @@ from heli_common.measurements import (
     NEW_BARO,
     NEW_GPS,
     NEW_IMU,
+    NEW_MAG,
     OUT_ACCEL,
     OUT_ATT,
     OUT_ATT_T,
     OUT_BARO_ALT,
     OUT_BARO_T,
+    OUT_GPS_EPH_M,
+    OUT_GPS_EPV_M,
+    OUT_GPS_FIX_TYPE,
     OUT_GPS_POS,
+    OUT_GPS_SATS,
     OUT_GPS_T,
     OUT_GPS_VEL,
     OUT_GYRO,
     OUT_IMU_T,
+    OUT_MAG,
+    OUT_MAG_T,
 )
-from heli_common.sensor_wire import BARO_FIELD, IMU_FIELDS, gps_from_wire, home_array
+from heli_common.sensor_wire import (
+    BARO_FIELD,
+    IMU_FIELDS,
+    MAG_FIELDS,
+    gps_from_wire,
+    gps_status_from_wire,
+    home_array,
+)
 from heli_common.state import FloatArray
 
 
 class Measurements:
-    """The vehicle's sensors as the sim link brings them (HIL_SENSOR, HIL_GPS, AHRS2, the
-    plant's frames and units: body FRD, NED, lat/lon about ``home``), gathered into the
+    """The vehicle's sensors as the sim link brings them (HIL_SENSOR: IMU, magnetometer and
+    baro; HIL_GPS: a fix and the receiver's status; AHRS2; the plant's frames and units: body
+    FRD, NED, lat/lon about ``home``, eph/epv in cm), gathered into the
     measurement layout of :mod:`heli_common.measurements` (NWU/FLU, SI). New samples
     accumulate in ``mask`` until a state takes them (:meth:`take`)."""
 
@@ -74,6 +89,10 @@ class Measurements:
                 m[OUT_ACCEL : OUT_ACCEL + 3] = frames.frd_to_flu((msg.xacc, msg.yacc, msg.zacc))
                 m[OUT_GYRO : OUT_GYRO + 3] = frames.frd_to_flu((msg.xgyro, msg.ygyro, msg.zgyro))
                 self.mask |= NEW_IMU
+            if msg.fields_updated & MAG_FIELDS == MAG_FIELDS:
+                m[OUT_MAG_T] = self.t_s
+                m[OUT_MAG : OUT_MAG + 3] = frames.frd_to_flu((msg.xmag, msg.ymag, msg.zmag))
+                self.mask |= NEW_MAG
             if msg.fields_updated & BARO_FIELD:
                 m[OUT_BARO_T] = self.t_s
                 m[OUT_BARO_ALT] = msg.pressure_alt
@@ -85,6 +104,8 @@ class Measurements:
             m[OUT_GPS_T] = msg.time_usec / 1e6
             gps_from_wire(msg.lat, msg.lon, msg.alt, msg.vn, msg.ve, msg.vd, self.home,
                           m[OUT_GPS_POS : OUT_GPS_POS + 3], m[OUT_GPS_VEL : OUT_GPS_VEL + 3])  # fmt: skip
+            status = gps_status_from_wire(msg.fix_type, msg.satellites_visible, msg.eph, msg.epv)
+            m[OUT_GPS_FIX_TYPE], m[OUT_GPS_SATS], m[OUT_GPS_EPH_M], m[OUT_GPS_EPV_M] = status
             self.mask |= NEW_GPS
             return True
         if isinstance(msg, Ahrs2):

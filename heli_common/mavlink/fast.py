@@ -24,8 +24,8 @@ the MAVLink generator orders them) come from pymavlink 2.4.50's ``common`` diale
     PARAM_SET            (23,  CRC_EXTRA 168): <fBB16sB            23 bytes (world settings, rare)
     WIND_COV             (231, CRC_EXTRA 105): <Qffffffff          40 bytes (the world's air)
     ACTUATOR_OUTPUT_STATUS(375, CRC_EXTRA 251): <QI32f            140 bytes (servo positions)
-    HIL_SENSOR           (107, CRC_EXTRA 108): <Q13fIB             65 bytes (IMU, baro)
-    HIL_GPS              (113, CRC_EXTRA 124): <QiiiHHHhhhHBBBH    39 bytes (GPS fix)
+    HIL_SENSOR           (107, CRC_EXTRA 108): <Q13fIB             65 bytes (IMU, mag, baro)
+    HIL_GPS              (113, CRC_EXTRA 124): <QiiiHHHhhhHBBBH    39 bytes (GPS fix, status)
     AHRS2                (178, CRC_EXTRA 47):  <ffffii             24 bytes (attitude source)
 
 Extension fields (HIL_SENSOR ``id``; HIL_GPS ``id``, ``yaw``) follow the base fields in
@@ -140,11 +140,13 @@ _SIZE_AOS: Final = _AOS.size
 _SIZE_SENS: Final = _SENS.size
 _SIZE_GPS: Final = _GPS.size
 _SIZE_AHRS2: Final = _AHRS2.size
-# HIL_GPS fields the sim link does not know: fix quality (3D fix, accuracies and course
-# unknown as UINT16_MAX, a plausible satellite count)
+# HIL_GPS's receiver status when the caller gives none: a 3D fix, a plausible satellite
+# count, accuracies unknown (UINT16_MAX); the course is always unknown
 _GPS_FIX_3D: Final = 3
 _GPS_UNKNOWN_U16: Final = 0xFFFF
 _GPS_SATELLITES: Final = 10
+_GPS_STATUS_UNKNOWN: Final = (_GPS_FIX_3D, _GPS_SATELLITES, _GPS_UNKNOWN_U16, _GPS_UNKNOWN_U16)
+_NO_MAG: Final = (0.0, 0.0, 0.0)
 
 
 def _crc_table() -> tuple[int, ...]:
@@ -522,23 +524,27 @@ class SimCodec:
         fields_updated: int,
         gps: Iterable[int] | None,
         ahrs: Iterable[float] | None,
+        mag: Iterable[float] = _NO_MAG,
+        gps_status: Iterable[int] | None = None,
     ) -> bytes:
         """One datagram: HIL_SENSOR, then HIL_GPS if ``gps``, then AHRS2 if ``ahrs`` (seq, +1, +2).
 
         ``imu`` = (xacc, yacc, zacc [m/s^2], xgyro, ygyro, zgyro [rad/s]) body FRD; HIL_SENSOR
-        carries ``t_us``, ``imu``, ``pressure_alt_m`` and ``fields_updated`` (the
-        HIL_SENSOR_UPDATED_FLAGS bits), magnetometer, pressures, temperature and ``id`` 0.
-        ``gps`` = (time_usec, lat_e7, lon_e7, alt_mm, vn, ve, vd [cm/s]): a 3D fix with
-        unknown accuracies and course (UINT16_MAX), 10 satellites, ground speed
-        ``round(hypot(vn, ve))`` [cm/s], ``id`` and ``yaw`` 0. ``ahrs`` = (roll, pitch, yaw)
-        [rad] with altitude, lat and lng 0. Out-of-range values raise as in
-        :meth:`encode_state` and use no sequence number.
+        carries ``t_us``, ``imu``, ``mag`` = (xmag, ymag, zmag) [gauss] body FRD (0 if not
+        given), ``pressure_alt_m`` and ``fields_updated`` (the HIL_SENSOR_UPDATED_FLAGS bits),
+        pressures, temperature and ``id`` 0. ``gps`` = (time_usec, lat_e7, lon_e7, alt_mm,
+        vn, ve, vd [cm/s]), with ``gps_status`` = (fix_type, satellites_visible, eph, epv)
+        (the sim link's eph/epv: accuracies in cm, see :mod:`heli_common.sensor_wire`); without
+        it a 3D fix, 10 satellites and unknown accuracies (UINT16_MAX). The course is unknown
+        (UINT16_MAX), the ground speed ``round(hypot(vn, ve))`` [cm/s], ``id`` and ``yaw`` 0.
+        ``ahrs`` = (roll, pitch, yaw) [rad] with altitude, lat and lng 0. Out-of-range values
+        raise as in :meth:`encode_state` and use no sequence number.
         """
         seq = self.seq
         crc = crc16_mcrf4xx
         table = _CRC_TABLE
 
-        pay = _SENS.pack(t_us, *imu, 0.0, 0.0, 0.0, 0.0, 0.0, pressure_alt_m, 0.0, fields_updated, 0)
+        pay = _SENS.pack(t_us, *imu, *mag, 0.0, 0.0, pressure_alt_m, 0.0, fields_updated, 0)
         pay = pay.rstrip(b"\0") or b"\0"  # MAVLink 2 truncation, as pymavlink: keep >= 1 byte
         body = bytes((len(pay), 0, 0, seq)) + self._tail_sens + pay
         c = crc(body, 0xFFFF)
@@ -548,10 +554,10 @@ class SimCodec:
 
         if gps is not None:
             t_fix, lat, lon, alt, vn, ve, vd = gps
+            fix_type, sats, eph, epv = _GPS_STATUS_UNKNOWN if gps_status is None else gps_status
             vel = min(_GPS_UNKNOWN_U16, int(round(math.hypot(vn, ve))))
             pay = _GPS.pack(
-                t_fix, lat, lon, alt, _GPS_UNKNOWN_U16, _GPS_UNKNOWN_U16, vel, vn, ve, vd,
-                _GPS_UNKNOWN_U16, _GPS_FIX_3D, _GPS_SATELLITES, 0, 0,
+                t_fix, lat, lon, alt, eph, epv, vel, vn, ve, vd, _GPS_UNKNOWN_U16, fix_type, sats, 0, 0,
             )  # fmt: skip
             pay = pay.rstrip(b"\0") or b"\0"
             body = bytes((len(pay), 0, 0, (seq + k) & 0xFF)) + self._tail_gps + pay

@@ -1,4 +1,5 @@
-"""Sensor models in the plant's step (compiled): IMU, GPS, attitude source, barometer.
+"""Sensor models in the plant's step (compiled): IMU, GPS, attitude source, barometer,
+magnetometer.
 
 :class:`SensorModel` turns a configured :class:`heli_common.sensors.Sensors` into three flat
 float64 arrays (named offsets below) and :func:`sensor_step` is called once per plant step
@@ -32,6 +33,12 @@ Per sensor (details and sources in docs/sensors.md):
   ready (only after a lag is shortened live) the newest is delivered, older ones dropped;
   if the FIFO is full the oldest entry is overwritten (sized so that cannot happen).
 * Baro drift: ``d += rate * dt`` per sample (ArduPilot's SITL_Baro drifts the same way).
+* Magnetometer: ``R^T m_nwu`` (the earth's field at home, :mod:`heli_common.magnetic`, carried
+  in the parameters) + a constant hard-iron offset + white noise, no latency.
+* GPS receiver status, written with each fix delivered: fix type 3 (3D), the configured
+  satellite count, and the receiver's own 1-sigma accuracies ``eph`` (per horizontal axis)
+  and ``epv``: ``sqrt(noise^2 + wander^2)`` of its error model, at least
+  ``GPS_ACCURACY_FLOOR_M`` (also what an ideal receiver, a GPS that is off, reports).
 * Failures: from ``fault_start_s`` (compared with the sample's validity time) a step bias is
   added, and ``freeze`` holds the last output values (new samples keep their times, the
   values stay); a frozen sensor with no output yet outputs its first sample. GPS
@@ -58,11 +65,16 @@ Parameters (``params[SNP_*]``, float64, built by :func:`sensor_parameters`)::
     SNP_GPS_TAU_S                            Gauss-Markov time constant
     SNP_GPS_VEL_SIGMA                        white velocity std per fix [m/s]
     SNP_GPS_DISABLED, SNP_GPS_FREEZE, SNP_GPS_FAULT_T, SNP_GPS_STEP (3)
+    SNP_GPS_SATS, SNP_GPS_EPH_M, SNP_GPS_EPV_M   what the receiver reports with a fix
     SNP_GPS_QUEUE, SNP_GPS_QUEUE_CAP         state offset and slots of the GPS FIFO
     SNP_ATT_RATE_HZ, SNP_ATT_LAG_S, SNP_ATT_SIGMA (3), SNP_ATT_BIAS (3)
     SNP_ATT_FREEZE, SNP_ATT_FAULT_T, SNP_ATT_STEP (3), SNP_ATT_QUEUE, SNP_ATT_QUEUE_CAP
     SNP_BARO_RATE_HZ, SNP_BARO_SIGMA, SNP_BARO_DRIFT, SNP_BARO_FREEZE, SNP_BARO_FAULT_T,
     SNP_BARO_STEP
+    SNP_MAG_RATE_HZ, SNP_MAG_SIGMA           white std per sample per axis [gauss]
+    SNP_MAG_FIELD (3)                        the earth's field at home, earth NWU [gauss]
+    SNP_MAG_HARD_IRON (3)                    constant offset, body FLU [gauss]
+    SNP_MAG_FREEZE, SNP_MAG_FAULT_T, SNP_MAG_STEP (3)
 
 State (``state[SNS_*]``, float64, :func:`sensor_state`), per sensor ``NEXT`` (index of the
 next due sample, -1: schedule from the next call), ``LAST_T`` (time of the last sample, NaN
@@ -73,6 +85,7 @@ before the first), ``N`` (samples taken: the noise counter), ``OUT`` (samples ou
     SNS_GPS_HEAD, SNS_GPS_COUNT              FIFO ring: oldest slot, entries
     SNS_ATT_HEAD, SNS_ATT_COUNT
     SNS_BARO_DRIFT                           accumulated drift [m]
+    SNS_MAG_NEXT, SNS_MAG_LAST_T, SNS_MAG_N, SNS_MAG_OUT
     state[SNP_GPS_QUEUE + slot * GPS_REC ...]   (t_valid, pos 3, vel 3)
     state[SNP_ATT_QUEUE + slot * ATT_REC ...]   (t_valid, euler 3)
 
@@ -80,10 +93,12 @@ Output (``out[OUT_*]``, float64, NaN before a sensor's first sample)::
 
     OUT_IMU_T, OUT_GYRO (3), OUT_ACCEL (3)           body FLU [rad/s], [m/s^2]
     OUT_GPS_T, OUT_GPS_POS (3), OUT_GPS_VEL (3)      validity time; earth NWU [m], [m/s]
+    OUT_GPS_FIX_TYPE, OUT_GPS_SATS, OUT_GPS_EPH_M, OUT_GPS_EPV_M   the receiver's status
     OUT_ATT_T, OUT_ATT (3)                           ZYX Euler [rad]
     OUT_BARO_T, OUT_BARO_ALT                         height above home [m]
+    OUT_MAG_T, OUT_MAG (3)                           body FLU [gauss]
 
-and the mask bits ``NEW_IMU``, ``NEW_GPS``, ``NEW_ATT``, ``NEW_BARO``.
+and the mask bits ``NEW_IMU``, ``NEW_GPS``, ``NEW_ATT``, ``NEW_BARO``, ``NEW_MAG``.
 """
 
 from __future__ import annotations
@@ -93,31 +108,43 @@ from typing import NamedTuple
 
 import numpy as np
 
+from heli_common.defaults import HOME
+from heli_common.geo import GeoPoint
 from heli_common.jit import njit
 from heli_common.kinematics import cross, rot_body_to_earth
 from heli_common.layout import Layout
+from heli_common.magnetic import earth_field_nwu_gauss
 from heli_common.measurements import (  # the out layout and mask bits are the contract's
+    GPS_FIX_3D,
     N_OUT,
     NEW_ATT,
     NEW_BARO,
     NEW_GPS,
     NEW_IMU,
+    NEW_MAG,
     OUT_ACCEL,
     OUT_ATT,
     OUT_ATT_T,
     OUT_BARO_ALT,
     OUT_BARO_T,
+    OUT_GPS_EPH_M,
+    OUT_GPS_EPV_M,
+    OUT_GPS_FIX_TYPE,
     OUT_GPS_POS,
+    OUT_GPS_SATS,
     OUT_GPS_T,
     OUT_GPS_VEL,
     OUT_GYRO,
     OUT_IMU_T,
+    OUT_MAG,
+    OUT_MAG_T,
     AttitudeSample,
     BaroSample,
     GpsFix,
     ImuSample,
+    MagSample,
 )
-from heli_common.sensors import Sensors, validate
+from heli_common.sensors import SENSOR_TABLES, Sensors, validate
 from heli_common.state import N_STATE, OMEGA, P_X, PHI, PSI, THETA, U_F, V_L, VEL, W_U, X_N, Z_U, FloatArray
 from heli_plant.world.noise import STREAM_SENSOR_BASE, normal, normal_pair
 
@@ -132,6 +159,7 @@ STREAM_GPS_WANDER_INIT = STREAM_SENSOR_BASE + 6
 STREAM_GPS_VEL = STREAM_SENSOR_BASE + 7
 STREAM_ATT = STREAM_SENSOR_BASE + 8
 STREAM_BARO = STREAM_SENSOR_BASE + 9
+STREAM_MAG = STREAM_SENSOR_BASE + 10
 
 
 # --- params[SNP_*] ---------------------------------------------------------------------------
@@ -145,13 +173,17 @@ SENSOR_PARAMS = Layout(
     # GPS
     ("gps_rate_hz", 1), ("gps_lag_s", 1), ("gps_sigma_h", 1), ("gps_sigma_v", 1), ("gps_wander_h", 1),
     ("gps_wander_v", 1), ("gps_tau_s", 1), ("gps_vel_sigma", 1), ("gps_disabled", 1), ("gps_freeze", 1),
-    ("gps_fault_t", 1), ("gps_step", 3), ("gps_queue", 1), ("gps_queue_cap", 1),
+    ("gps_fault_t", 1), ("gps_step", 3), ("gps_sats", 1), ("gps_eph_m", 1), ("gps_epv_m", 1),
+    ("gps_queue", 1), ("gps_queue_cap", 1),
     # attitude source
     ("att_rate_hz", 1), ("att_lag_s", 1), ("att_sigma", 3), ("att_bias", 3), ("att_freeze", 1),
     ("att_fault_t", 1), ("att_step", 3), ("att_queue", 1), ("att_queue_cap", 1),
     # barometer
     ("baro_rate_hz", 1), ("baro_sigma", 1), ("baro_drift", 1), ("baro_freeze", 1), ("baro_fault_t", 1),
     ("baro_step", 1),
+    # magnetometer
+    ("mag_rate_hz", 1), ("mag_sigma", 1), ("mag_field", 3), ("mag_hard_iron", 3), ("mag_freeze", 1),
+    ("mag_fault_t", 1), ("mag_step", 3),
 )  # fmt: skip
 SNP_SEED = SENSOR_PARAMS.offset("seed")
 SNP_TOL_S = SENSOR_PARAMS.offset("tol_s")
@@ -179,6 +211,9 @@ SNP_GPS_DISABLED = SENSOR_PARAMS.offset("gps_disabled")
 SNP_GPS_FREEZE = SENSOR_PARAMS.offset("gps_freeze")
 SNP_GPS_FAULT_T = SENSOR_PARAMS.offset("gps_fault_t")
 SNP_GPS_STEP = SENSOR_PARAMS.offset("gps_step")
+SNP_GPS_SATS = SENSOR_PARAMS.offset("gps_sats")
+SNP_GPS_EPH_M = SENSOR_PARAMS.offset("gps_eph_m")
+SNP_GPS_EPV_M = SENSOR_PARAMS.offset("gps_epv_m")
 SNP_GPS_QUEUE = SENSOR_PARAMS.offset("gps_queue")
 SNP_GPS_QUEUE_CAP = SENSOR_PARAMS.offset("gps_queue_cap")
 SNP_ATT_RATE_HZ = SENSOR_PARAMS.offset("att_rate_hz")
@@ -196,6 +231,13 @@ SNP_BARO_DRIFT = SENSOR_PARAMS.offset("baro_drift")
 SNP_BARO_FREEZE = SENSOR_PARAMS.offset("baro_freeze")
 SNP_BARO_FAULT_T = SENSOR_PARAMS.offset("baro_fault_t")
 SNP_BARO_STEP = SENSOR_PARAMS.offset("baro_step")
+SNP_MAG_RATE_HZ = SENSOR_PARAMS.offset("mag_rate_hz")
+SNP_MAG_SIGMA = SENSOR_PARAMS.offset("mag_sigma")
+SNP_MAG_FIELD = SENSOR_PARAMS.offset("mag_field")
+SNP_MAG_HARD_IRON = SENSOR_PARAMS.offset("mag_hard_iron")
+SNP_MAG_FREEZE = SENSOR_PARAMS.offset("mag_freeze")
+SNP_MAG_FAULT_T = SENSOR_PARAMS.offset("mag_fault_t")
+SNP_MAG_STEP = SENSOR_PARAMS.offset("mag_step")
 N_SNP = SENSOR_PARAMS.size
 
 # --- state[SNS_*] ----------------------------------------------------------------------------
@@ -207,6 +249,7 @@ SENSOR_STATE = Layout(
     ("gps_head", 1), ("gps_count", 1),
     ("att_next", 1), ("att_last_t", 1), ("att_n", 1), ("att_out", 1), ("att_head", 1), ("att_count", 1),
     ("baro_next", 1), ("baro_last_t", 1), ("baro_n", 1), ("baro_out", 1), ("baro_drift", 1),
+    ("mag_next", 1), ("mag_last_t", 1), ("mag_n", 1), ("mag_out", 1),
 )  # fmt: skip
 SNS_IMU_NEXT = SENSOR_STATE.offset("imu_next")
 SNS_IMU_LAST_T = SENSOR_STATE.offset("imu_last_t")
@@ -233,6 +276,10 @@ SNS_BARO_LAST_T = SENSOR_STATE.offset("baro_last_t")
 SNS_BARO_N = SENSOR_STATE.offset("baro_n")
 SNS_BARO_OUT = SENSOR_STATE.offset("baro_out")
 SNS_BARO_DRIFT = SENSOR_STATE.offset("baro_drift")
+SNS_MAG_NEXT = SENSOR_STATE.offset("mag_next")
+SNS_MAG_LAST_T = SENSOR_STATE.offset("mag_last_t")
+SNS_MAG_N = SENSOR_STATE.offset("mag_n")
+SNS_MAG_OUT = SENSOR_STATE.offset("mag_out")
 N_SNS = SENSOR_STATE.size
 
 # one FIFO entry of each delayed sensor, relative to its slot's start
@@ -249,6 +296,11 @@ ATT_REC = ATT_RECORD.size
 
 #: timing tolerance as a fraction of the plant step (absorbs a time accumulated by += dt)
 TOL_STEPS = 1e-3
+
+#: the accuracy a receiver reports when its error model is off (an ideal receiver) or adds
+#: up to less [m]: 1 cm, the resolution of HIL_GPS eph/epv, so the report is never 0
+#: ("exact"), which a consumer could take as infinite confidence
+GPS_ACCURACY_FLOOR_M = 0.01
 
 
 # ---------------------------------------------------------------- truth helpers
@@ -278,6 +330,19 @@ def specific_force_flu(
         rt[0, 0] * ax + rt[1, 0] * ay + rt[2, 0] * az,
         rt[0, 1] * ax + rt[1, 1] * ay + rt[2, 1] * az,
         rt[0, 2] * ax + rt[1, 2] * ay + rt[2, 2] * az,
+    )
+
+
+@njit
+def magnetic_field_flu(x: FloatArray, field_nwu_gauss: FloatArray) -> tuple[float, float, float]:
+    """What a perfect magnetometer reads, body FLU: ``R^T m_nwu`` [gauss], ``m_nwu`` the
+    earth's field (:func:`heli_common.magnetic.earth_field_nwu_gauss` at home)."""
+    rt = rot_body_to_earth(x[PHI], x[THETA], x[PSI])
+    m0, m1, m2 = field_nwu_gauss[0], field_nwu_gauss[1], field_nwu_gauss[2]
+    return (
+        rt[0, 0] * m0 + rt[1, 0] * m1 + rt[2, 0] * m2,
+        rt[0, 1] * m0 + rt[1, 1] * m1 + rt[2, 1] * m2,
+        rt[0, 2] * m0 + rt[1, 2] * m1 + rt[2, 2] * m2,
     )
 
 
@@ -482,6 +547,11 @@ def _gps_deliver(t: float, p: FloatArray, s: FloatArray, out: FloatArray) -> boo
         for i in range(3):
             out[OUT_GPS_POS + i] = s[base + GR_POS + i]
             out[OUT_GPS_VEL + i] = s[base + GR_VEL + i]
+    # the receiver's own report (a frozen receiver does not know it is: status as usual)
+    out[OUT_GPS_FIX_TYPE] = float(GPS_FIX_3D)
+    out[OUT_GPS_SATS] = p[SNP_GPS_SATS]
+    out[OUT_GPS_EPH_M] = p[SNP_GPS_EPH_M]
+    out[OUT_GPS_EPV_M] = p[SNP_GPS_EPV_M]
     s[SNS_GPS_OUT] += 1.0
     return True
 
@@ -550,6 +620,29 @@ def _baro_sample(t: float, x: FloatArray, seed: int, p: FloatArray, s: FloatArra
 
 
 @njit
+def _mag_sample(t: float, x: FloatArray, seed: int, p: FloatArray, s: FloatArray, out: FloatArray) -> None:
+    n = int(s[SNS_MAG_N])
+    s[SNS_MAG_LAST_T] = t
+    s[SNS_MAG_N] = float(n + 1)
+    sigma = p[SNP_MAG_SIGMA]
+    w = _normal3(seed, STREAM_MAG, n) if sigma > 0.0 else (0.0, 0.0, 0.0)
+    out[OUT_MAG_T] = t
+    fault = t >= p[SNP_MAG_FAULT_T]
+    if fault and p[SNP_MAG_FREEZE] != 0.0 and s[SNS_MAG_OUT] > 0.0:
+        s[SNS_MAG_OUT] += 1.0
+        return  # the values stay
+    b = magnetic_field_flu(x, p[SNP_MAG_FIELD : SNP_MAG_FIELD + 3])
+    for i in range(3):
+        v = b[i] + p[SNP_MAG_HARD_IRON + i]
+        if sigma > 0.0:
+            v += sigma * w[i]
+        if fault:
+            v += p[SNP_MAG_STEP + i]
+        out[OUT_MAG + i] = v
+    s[SNS_MAG_OUT] += 1.0
+
+
+@njit
 def sensor_step(
     t_s: float, x: FloatArray, accel_earth_nwu: FloatArray, params: FloatArray, state: FloatArray,
     out: FloatArray,
@@ -557,8 +650,8 @@ def sensor_step(
     """One plant step of every sensor: ``x`` the true state at ``t_s``, ``accel_earth_nwu``
     the true c.g. acceleration ``d/dt (R v)`` there (gravity not included). Writes the new
     samples into ``out`` (layout in the module docstring) and returns the mask of the new
-    ones (``NEW_IMU | NEW_GPS | NEW_ATT | NEW_BARO``). Call it once per step, with
-    non-decreasing ``t_s``."""
+    ones (``NEW_IMU | NEW_GPS | NEW_ATT | NEW_BARO | NEW_MAG``). Call it once per step,
+    with non-decreasing ``t_s``."""
     seed = int(params[SNP_SEED])
     tol = params[SNP_TOL_S]
     new = 0
@@ -577,6 +670,9 @@ def sensor_step(
     if _due(t_s, params[SNP_BARO_RATE_HZ], tol, state, SNS_BARO_NEXT):
         _baro_sample(t_s, x, seed, params, state, out)
         new |= NEW_BARO
+    if _due(t_s, params[SNP_MAG_RATE_HZ], tol, state, SNS_MAG_NEXT):
+        _mag_sample(t_s, x, seed, params, state, out)
+        new |= NEW_MAG
     return new
 
 
@@ -591,14 +687,29 @@ def _queue_slots(rate_hz: float, lag_s: float) -> int:
     return int(math.ceil(lag_s * rate_hz)) + 3
 
 
+def gps_accuracy_m(config: Sensors) -> tuple[float, float]:
+    """What the receiver reports as its 1-sigma position accuracy, (per horizontal axis,
+    vertical) [m]: its error model's ``sqrt(noise^2 + wander^2)``, at least
+    :data:`GPS_ACCURACY_FLOOR_M` (all it reports when its error model is off)."""
+    g = config.gps
+    if not g.on:
+        return GPS_ACCURACY_FLOOR_M, GPS_ACCURACY_FLOOR_M
+    h = math.sqrt(g.noise_h_m**2 + g.wander_h_m**2)
+    v = math.sqrt(g.noise_v_m**2 + g.wander_v_m**2)
+    return max(h, GPS_ACCURACY_FLOOR_M), max(v, GPS_ACCURACY_FLOOR_M)
+
+
 def sensor_parameters(
-    config: Sensors, step_s: float, gravity_m_s2: float, *, min_slots: tuple[int, int] = (0, 0)
-) -> FloatArray:
+    config: Sensors, step_s: float, gravity_m_s2: float, *, min_slots: tuple[int, int] = (0, 0),
+    home: GeoPoint = HOME,
+) -> FloatArray:  # fmt: skip
     """The compiled step's parameters for ``config`` at plant step ``step_s`` (layout: the
     SNP_* offsets). A sensor that is off gets rate 0 (every step) and no error terms; its
     failure settings still apply. ``min_slots``: the least GPS and attitude FIFO sizes (a
-    live update never shrinks them, so the entries in flight fit). ValueError: a field out
-    of range, a non-positive step or gravity, or a sensor rate above the plant rate."""
+    live update never shrinks them, so the entries in flight fit). ``home``: where the
+    magnetometer's earth field is taken (:mod:`heli_common.magnetic`; the vehicle flies
+    within kilometres of it). ValueError: a field out of range, a non-positive step or
+    gravity, or a sensor rate above the plant rate."""
     validate(config)
     h = float(step_s)
     if not (math.isfinite(h) and h > 0.0):
@@ -606,7 +717,7 @@ def sensor_parameters(
     if not (math.isfinite(gravity_m_s2) and gravity_m_s2 > 0.0):
         raise ValueError(f"gravity_m_s2 must be finite and > 0, got {gravity_m_s2}")
     plant_hz = 1.0 / h
-    for name in ("imu", "gps", "attitude", "baro"):
+    for name in SENSOR_TABLES:
         part = getattr(config, name)
         if part.on and part.rate_hz > plant_hz * (1.0 + 1e-9):
             raise ValueError(f"{name}.rate_hz = {part.rate_hz} Hz exceeds the plant rate {plant_hz} Hz")
@@ -644,6 +755,8 @@ def sensor_parameters(
     p[SNP_GPS_FREEZE] = 1.0 if g.freeze else 0.0
     p[SNP_GPS_FAULT_T] = g.fault_start_s
     p[SNP_GPS_STEP : SNP_GPS_STEP + 3] = g.step_m
+    p[SNP_GPS_SATS] = float(g.satellites)
+    p[SNP_GPS_EPH_M], p[SNP_GPS_EPV_M] = gps_accuracy_m(config)
 
     a = config.attitude
     if a.on:
@@ -664,6 +777,16 @@ def sensor_parameters(
     p[SNP_BARO_FAULT_T] = b.fault_start_s
     p[SNP_BARO_STEP] = b.step_m
 
+    mg = config.mag
+    p[SNP_MAG_FIELD : SNP_MAG_FIELD + 3] = earth_field_nwu_gauss(home.lat_deg, home.lon_deg)
+    if mg.on:
+        p[SNP_MAG_RATE_HZ] = mg.rate_hz
+        p[SNP_MAG_SIGMA] = mg.noise_gauss
+        p[SNP_MAG_HARD_IRON : SNP_MAG_HARD_IRON + 3] = mg.hard_iron_gauss
+    p[SNP_MAG_FREEZE] = 1.0 if mg.freeze else 0.0
+    p[SNP_MAG_FAULT_T] = mg.fault_start_s
+    p[SNP_MAG_STEP : SNP_MAG_STEP + 3] = mg.step_gauss
+
     gps_slots = max(_queue_slots(p[SNP_GPS_RATE_HZ], p[SNP_GPS_LAG_S]), min_slots[0])
     att_slots = max(_queue_slots(p[SNP_ATT_RATE_HZ], p[SNP_ATT_LAG_S]), min_slots[1])
     p[SNP_GPS_QUEUE] = float(N_SNS)
@@ -683,6 +806,7 @@ def sensor_state(params: FloatArray) -> FloatArray:
         (SNS_GPS_NEXT, SNS_GPS_LAST_T),
         (SNS_ATT_NEXT, SNS_ATT_LAST_T),
         (SNS_BARO_NEXT, SNS_BARO_LAST_T),
+        (SNS_MAG_NEXT, SNS_MAG_LAST_T),
     ):
         s[i_next] = -1.0
         s[i_last] = math.nan
@@ -711,6 +835,7 @@ class SensorSamples(NamedTuple):
     gps: GpsFix | None
     attitude: AttitudeSample | None
     baro: BaroSample | None
+    mag: MagSample | None
 
 
 def samples_from_out(out: FloatArray, mask: int) -> SensorSamples:
@@ -723,20 +848,23 @@ def samples_from_out(out: FloatArray, mask: int) -> SensorSamples:
     gps = GpsFix(float(out[OUT_GPS_T]), v3(OUT_GPS_POS), v3(OUT_GPS_VEL)) if mask & NEW_GPS else None
     att = AttitudeSample(float(out[OUT_ATT_T]), v3(OUT_ATT)) if mask & NEW_ATT else None
     baro = BaroSample(float(out[OUT_BARO_T]), float(out[OUT_BARO_ALT])) if mask & NEW_BARO else None
-    return SensorSamples(imu, gps, att, baro)
+    mag = MagSample(float(out[OUT_MAG_T]), v3(OUT_MAG)) if mask & NEW_MAG else None
+    return SensorSamples(imu, gps, att, baro, mag)
 
 
 class SensorModel:
     """A configured set of sensors for one plant running at ``step_s``; ``gravity_m_s2``
     must be the plant's (the airframe's), so that the accelerometer reads exactly +g at
-    rest. :meth:`step` is :func:`sensor_step` with NamedTuples out; the compiled plant can
-    call :func:`sensor_step` on :attr:`params`, :attr:`state` and :attr:`out` directly."""
+    rest, and ``home`` the plant's (the magnetometer reads the earth's field there).
+    :meth:`step` is :func:`sensor_step` with NamedTuples out; the compiled plant can call
+    :func:`sensor_step` on :attr:`params`, :attr:`state` and :attr:`out` directly."""
 
-    def __init__(self, config: Sensors, step_s: float, gravity_m_s2: float) -> None:
+    def __init__(self, config: Sensors, step_s: float, gravity_m_s2: float, home: GeoPoint = HOME) -> None:
         self.config = config
         self.step_s = float(step_s)
         self.gravity_m_s2 = float(gravity_m_s2)
-        self.params = sensor_parameters(config, self.step_s, self.gravity_m_s2)
+        self.home = home
+        self.params = sensor_parameters(config, self.step_s, self.gravity_m_s2, home=home)
         self.state = sensor_state(self.params)
         self.out = np.full(N_OUT, math.nan)
         # load (or compile) the kernel now, on copies, not on the first step
@@ -756,10 +884,10 @@ class SensorModel:
         """Take new settings from the next step on (live knobs, failures). The noise
         processes keep their state (counters, bias walks, GPS wander, baro drift), fixes in
         flight stay in their FIFO, and a sensor whose rate changed restarts its schedule on
-        the new rate's grid. The plant step and gravity stay."""
+        the new rate's grid. The plant step, gravity and home stay."""
         old_p, old_s = self.params, self.state
         slots = (int(old_p[SNP_GPS_QUEUE_CAP]), int(old_p[SNP_ATT_QUEUE_CAP]))
-        new_p = sensor_parameters(config, self.step_s, self.gravity_m_s2, min_slots=slots)
+        new_p = sensor_parameters(config, self.step_s, self.gravity_m_s2, min_slots=slots, home=self.home)
         new_s = sensor_state(new_p)
         new_s[:N_SNS] = old_s[:N_SNS]
         for rate_i, next_i in (
@@ -767,6 +895,7 @@ class SensorModel:
             (SNP_GPS_RATE_HZ, SNS_GPS_NEXT),
             (SNP_ATT_RATE_HZ, SNS_ATT_NEXT),
             (SNP_BARO_RATE_HZ, SNS_BARO_NEXT),
+            (SNP_MAG_RATE_HZ, SNS_MAG_NEXT),
         ):
             if new_p[rate_i] != old_p[rate_i]:
                 new_s[next_i] = -1.0

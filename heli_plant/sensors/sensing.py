@@ -24,15 +24,29 @@ from heli_common.measurements import (
     NEW_BARO,
     NEW_GPS,
     NEW_IMU,
+    NEW_MAG,
     OUT_ACCEL,
     OUT_ATT,
     OUT_BARO_ALT,
+    OUT_GPS_EPH_M,
+    OUT_GPS_EPV_M,
+    OUT_GPS_FIX_TYPE,
     OUT_GPS_POS,
+    OUT_GPS_SATS,
     OUT_GPS_T,
     OUT_GPS_VEL,
     OUT_GYRO,
+    OUT_MAG,
 )
-from heli_common.sensor_wire import BARO_FIELD, IMU_FIELDS, gps_to_wire, home_array, to_wire_resolution
+from heli_common.sensor_wire import (
+    BARO_FIELD,
+    IMU_FIELDS,
+    MAG_FIELDS,
+    gps_status_to_wire,
+    gps_to_wire,
+    home_array,
+    to_wire_resolution,
+)
 from heli_common.sensors import Sensors
 from heli_common.state import N_PITCH, FloatArray
 from heli_common.world import World
@@ -80,7 +94,7 @@ def sense(
 @dataclass
 class Sensing:
     """A plant's configured sensors: the arrays :func:`sense` works on, and the home the
-    GPS reports about."""
+    GPS reports about (and where the magnetometer's earth field is taken)."""
 
     model: SensorModel
     home: FloatArray
@@ -89,7 +103,7 @@ class Sensing:
 
     @classmethod
     def build(cls, config: Sensors, step_s: float, gravity_m_s2: float, home: GeoPoint) -> Sensing:
-        model = SensorModel(config, step_s, gravity_m_s2)
+        model = SensorModel(config, step_s, gravity_m_s2, home)
         return cls(model, home_array(home), model.out)
 
     def update(self, config: Sensors) -> None:
@@ -111,21 +125,26 @@ class Sensing:
 
 
 def encode_measurements(codec: SimCodec, t_s: float, sensing: Sensing) -> bytes:
-    """What the sensors measured at the plant's vehicle time ``t_s``, as HIL_SENSOR (IMU,
-    body FRD, and baro; ``fields_updated`` flags the new ones), HIL_GPS (a fix delivered
-    now; ``time_usec`` its validity time) and AHRS2 (a new attitude-source sample, NED/FRD
-    Euler angles, yaw unwrapped), in one piece of the state's datagram."""
+    """What the sensors measured at the plant's vehicle time ``t_s``, as HIL_SENSOR (IMU and
+    magnetometer, body FRD, and baro; ``fields_updated`` flags the new ones), HIL_GPS (a fix
+    delivered now, with the receiver's status; ``time_usec`` its validity time) and AHRS2 (a
+    new attitude-source sample, NED/FRD Euler angles, yaw unwrapped), in one piece of the
+    state's datagram."""
     m, new = sensing.meas, sensing.mask
-    gyro = frames.flip(m[OUT_GYRO : OUT_GYRO + 3])
-    accel = frames.flip(m[OUT_ACCEL : OUT_ACCEL + 3])
-    fields = (IMU_FIELDS if new & NEW_IMU else 0) | (BARO_FIELD if new & NEW_BARO else 0)
-    gps = None
+    gyro = frames.flu_to_frd(m[OUT_GYRO : OUT_GYRO + 3])
+    accel = frames.flu_to_frd(m[OUT_ACCEL : OUT_ACCEL + 3])
+    mag = frames.flu_to_frd(m[OUT_MAG : OUT_MAG + 3])
+    fields = ((IMU_FIELDS if new & NEW_IMU else 0) | (BARO_FIELD if new & NEW_BARO else 0)
+              | (MAG_FIELDS if new & NEW_MAG else 0))  # fmt: skip
+    gps = status = None
     if new & NEW_GPS:
         wire = gps_to_wire(m[OUT_GPS_POS : OUT_GPS_POS + 3], m[OUT_GPS_VEL : OUT_GPS_VEL + 3], sensing.home)
         gps = (round(float(m[OUT_GPS_T]) * 1e6), *wire)
+        status = gps_status_to_wire(m[OUT_GPS_FIX_TYPE], m[OUT_GPS_SATS], m[OUT_GPS_EPH_M], m[OUT_GPS_EPV_M])
     # (phi, theta, psi) -> (roll, pitch, yaw) is the same sign change as a vector's
     ahrs = frames.flip(m[OUT_ATT : OUT_ATT + 3]) if new & NEW_ATT else None
-    return codec.encode_sensors(round(t_s * 1e6), (*accel, *gyro), float(m[OUT_BARO_ALT]), fields, gps, ahrs)
+    return codec.encode_sensors(round(t_s * 1e6), (*accel, *gyro), float(m[OUT_BARO_ALT]), fields, gps, ahrs,
+                                mag=mag, gps_status=status)  # fmt: skip
 
 
 # never read (in_world False), only there for the compiled signature

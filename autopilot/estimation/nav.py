@@ -1,0 +1,116 @@
+"""The estimator the vehicle flies on, whichever it is: one set of compiled kernels over
+one parameter array that names the filter.
+
+``attitude = "ins"`` (the default) is the inertial navigation filter of
+:mod:`autopilot.estimation.ins`; ``"ideal-ahrs"`` the attitude source with per-axis
+position filters of :mod:`autopilot.estimation.kf`, kept for comparisons. The in-process
+loop and the autopilot process both call :func:`nav_tick` and :func:`nav_log`, so they
+fly the same filter on the same numbers.
+
+``params`` = the header (``H_*``) followed by that filter's own parameters; ``state`` is
+that filter's state array (:func:`nav_state_size`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from autopilot.estimation import ins, kf
+from autopilot.estimation.config import EstimatorConfig
+from autopilot.estimation.log import L_ATT_ERR, L_GYRO_BIAS_ERR, L_NEES
+from heli_common.geo import GeoPoint
+from heli_common.jit import njit
+from heli_common.layout import Layout
+from heli_common.magnetic import earth_field_nwu_gauss
+from heli_common.state import FloatArray
+
+HEADER = Layout("navigation header", ("kind", 1), ("use_baro", 1))
+H_KIND = HEADER.offset("kind")
+H_USE_BARO = HEADER.offset("use_baro")
+N_HEADER = HEADER.size
+KIND_AHRS, KIND_INS = 0.0, 1.0
+
+
+def make_nav_params(config: EstimatorConfig, rate_hz: float, home: GeoPoint | None = None) -> FloatArray:
+    """The parameter array of ``config`` at ``rate_hz``; the home gives the navigation
+    filter the earth's field its magnetometer is compared with (the same field model as
+    the plant's magnetometer, :mod:`heli_common.magnetic`, as ArduPilot takes its
+    declination from a table; none: no magnetometer fusion)."""
+    head = np.zeros(N_HEADER)
+    head[H_USE_BARO] = 1.0 if config.use_baro else 0.0
+    if config.attitude == "ins":
+        head[H_KIND] = KIND_INS
+        field = (0.0, 0.0, 0.0) if home is None else earth_field_nwu_gauss(home.lat_deg, home.lon_deg)
+        return np.concatenate([head, ins.make_params(config, rate_hz, field)])
+    head[H_KIND] = KIND_AHRS
+    return np.concatenate([head, kf.make_params(config, rate_hz)])
+
+
+def nav_state_size(params: FloatArray) -> int:
+    if params[H_KIND] == KIND_INS:
+        return ins.state_size(int(params[N_HEADER + ins.K_N_BUF]))
+    return kf.state_size(int(params[N_HEADER + kf.K_N_BUF]))
+
+
+def nav_state(params: FloatArray, x0: FloatArray) -> FloatArray:
+    """A new state array started from the 12-state ``x0``."""
+    st = np.zeros(nav_state_size(params))
+    nav_init(params, st, np.asarray(x0, dtype=float))
+    return st
+
+
+@njit
+def nav_init(params: FloatArray, st: FloatArray, x0: FloatArray) -> None:
+    if params[H_KIND] == KIND_INS:
+        ins.est_init(params[N_HEADER:], st, x0)
+    else:
+        kf.est_init(params[N_HEADER:], st, x0)
+
+
+@njit
+def nav_tick(
+    params: FloatArray, st: FloatArray, t_s: float, meas: FloatArray, mask: int, x_out: FloatArray
+) -> int:
+    """One tick on the measurement layout; the estimate into ``x_out``; the GPS status."""
+    if params[H_KIND] == KIND_INS:
+        return ins.est_tick(params[N_HEADER:], st, t_s, meas, mask, x_out)
+    return kf.est_tick(params[N_HEADER:], st, t_s, meas, mask, params[H_USE_BARO] > 0.5, x_out)
+
+
+@njit
+def nav_log(params: FloatArray, st: FloatArray, gps_status: int, row: FloatArray) -> None:
+    """One row of the estimator's log (:mod:`autopilot.estimation.log`)."""
+    if params[H_KIND] == KIND_INS:
+        ins.log_tick(st, gps_status, row)
+    else:
+        kf.log_tick(st, gps_status, row)
+
+
+def nav_health(params: FloatArray, st: FloatArray) -> tuple[bool, float, int, int, float, bool]:
+    """``(gps_lost, time_since_fix_s, n_rejected, n_resets, last_nis, diverged)``."""
+    if params[H_KIND] == KIND_INS:
+        k = params[N_HEADER:]
+        since = float(st[ins.E_T] - st[ins.E_T_FIX]) if math.isfinite(st[ins.E_T]) else 0.0
+        return (since > k[ins.K_GPS_TIMEOUT], since, int(st[ins.E_N_REJECT]), int(st[ins.E_N_RESET]),
+                float(st[ins.E_NIS]), bool(st[ins.E_DIVERGED] > 0.5))  # fmt: skip
+    k = params[N_HEADER:]
+    since = float(st[kf.E_T] - st[kf.E_T_FIX]) if math.isfinite(st[kf.E_T]) else 0.0
+    return (since > k[kf.K_GPS_TIMEOUT], since, int(st[kf.E_N_REJECT]), int(st[kf.E_N_RESET]),
+            float(st[kf.E_NIS]), False)  # fmt: skip
+
+
+@njit
+def nav_truth(params: FloatArray, st: FloatArray, x_true: FloatArray, gyro_bias_true: FloatArray,
+              accel_bias_true: FloatArray, row: FloatArray) -> None:  # fmt: skip
+    """The log's truth columns where a simulation knows the truth: the navigation filter's
+    NEES over its 15 navigation states and its true attitude error (NaN for ideal-ahrs)."""
+    if params[H_KIND] != KIND_INS:
+        return
+    err = np.empty(ins.N_ERR)
+    ins.nav_error(st, x_true, gyro_bias_true, accel_bias_true, err)
+    row[L_NEES] = ins.nees(st, err)
+    for i in range(3):
+        row[L_ATT_ERR + i] = err[ins.D_ATT + i]
+        row[L_GYRO_BIAS_ERR + i] = err[ins.D_BG + i]
