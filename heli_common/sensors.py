@@ -296,6 +296,13 @@ PRESETS: dict[str, dict[str, Any]] = {
         },
     },
 }  # fmt: skip
+#: consumer  what a hobby helicopter carries: the gps-typical receiver and barometer with the
+#:           imu-consumer IMU and magnetometer (the navigation filter's consistency world)
+PRESETS["consumer"] = {
+    "name": "consumer", "seed": 1,
+    "gps": PRESETS["gps-typical"]["gps"], "baro": PRESETS["gps-typical"]["baro"],
+    "imu": PRESETS["imu-consumer"]["imu"], "mag": PRESETS["imu-consumer"]["mag"],
+}  # fmt: skip
 
 
 def preset(name: str) -> Sensors:

@@ -524,7 +524,7 @@ def test_defaults_are_off() -> None:
 
 
 def test_presets_build_and_carry_the_documented_numbers() -> None:
-    assert set(PRESETS) == {"gps-typical", "imu-consumer", "noisy"}
+    assert set(PRESETS) == {"gps-typical", "imu-consumer", "noisy", "consumer"}
     for name in PRESETS:
         s = validate(preset(name))
         assert s.name == name and s.errors_on and not s.faults_on
@@ -538,6 +538,9 @@ def test_presets_build_and_carry_the_documented_numbers() -> None:
     assert_allclose(vals["SIM_GYR_RND"], 0.05, rtol=1e-12)  # deg/s at 100 Hz
     assert_allclose(vals["SIM_ACC_RND"], 0.0392266, rtol=1e-6)  # m/s^2
     assert_allclose(i.gyro_walk_rad_s_rts * 60.0, 10.0 * DEG / 3600.0, rtol=1e-12)  # 10 deg/h after 1 h
+    c = preset("consumer")
+    assert (c.gps, c.baro) == (preset("gps-typical").gps, preset("gps-typical").baro)
+    assert (c.imu, c.mag) == (preset("imu-consumer").imu, preset("imu-consumer").mag)
     with pytest.raises(ValueError, match="unknown sensors preset"):
         preset("perfect")
 

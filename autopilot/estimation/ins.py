@@ -403,6 +403,33 @@ def mag_heading(field_flu: FloatArray, phi: float, theta: float, declination: fl
 
 
 @njit
+def _velocity_blocks(
+    q: FloatArray, w: FloatArray, a: FloatArray, dt: float
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """The velocity rows of F for the mechanisation ``v += R Exp(w dt / 2) a dt``:
+    ``dv/d d_theta = -R_mid [a]x Exp(w dt / 2)^T dt`` (R Exp(d) Exp(h) = R Exp(h) Exp(Exp(h)^T d))
+    ``dv/d b_a = -R_mid dt``, and through the half-tick rotation ``dv/d b_g =
+    R_mid [a]x dt^2 / 2``, with ``R_mid = R Exp(w dt / 2)``."""
+    half = quat_from_rotvec(0.5 * w[0] * dt, 0.5 * w[1] * dt, 0.5 * w[2] * dt)
+    rh = rot_from_quat(half)
+    r_mid = rot_from_quat(quat_mul(q, half))
+    ra = np.empty((3, 3))  # R_mid [a]x: column j is R_mid (e_j x a)
+    for i in range(3):
+        ra[i, 0] = r_mid[i, 1] * a[2] - r_mid[i, 2] * a[1]
+        ra[i, 1] = r_mid[i, 2] * a[0] - r_mid[i, 0] * a[2]
+        ra[i, 2] = r_mid[i, 0] * a[1] - r_mid[i, 1] * a[0]
+    m_va = np.empty((3, 3))
+    r_dt = np.empty((3, 3))
+    m_vg = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            m_va[i, j] = -(ra[i, 0] * rh[j, 0] + ra[i, 1] * rh[j, 1] + ra[i, 2] * rh[j, 2]) * dt
+            r_dt[i, j] = r_mid[i, j] * dt
+            m_vg[i, j] = 0.5 * dt * dt * ra[i, j]
+    return m_va, r_dt, m_vg
+
+
+@njit
 def error_transition(
     q: FloatArray, gyro: FloatArray, accel: FloatArray, nom: FloatArray, dt: float, tau_w: float
 ) -> FloatArray:
@@ -410,23 +437,22 @@ def error_transition(
     error) with the IMU sample held: dense, for the tests and the docs; the kernel applies
     the same blocks without forming it."""
     f = np.eye(N_ERR)
-    r = rot_from_quat(q)
     w = np.empty(3)
     a = np.empty(3)
     for i in range(3):
         w[i] = gyro[i] - nom[N_BG + i]
         a[i] = accel[i] - nom[N_BA + i]
     rw = rot_from_quat(quat_from_rotvec(w[0] * dt, w[1] * dt, w[2] * dt))
-    ra = np.empty((3, 3))  # R [a]x
-    ax = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
-    for i in range(3):
-        for j in range(3):
-            ra[i, j] = r[i, 0] * ax[0, j] + r[i, 1] * ax[1, j] + r[i, 2] * ax[2, j]
+    m_va, r_dt, m_vg = _velocity_blocks(q, w, a, dt)
     for i in range(3):
         for j in range(3):
             f[D_ATT + i, D_ATT + j] = rw[j, i]  # R{w dt}^T
-            f[D_VEL + i, D_ATT + j] = -ra[i, j] * dt
-            f[D_VEL + i, D_BA + j] = -r[i, j] * dt
+            f[D_VEL + i, D_ATT + j] = m_va[i, j]
+            f[D_VEL + i, D_BA + j] = -r_dt[i, j]
+            f[D_VEL + i, D_BG + j] = m_vg[i, j]
+            f[D_POS + i, D_BG + j] = 0.5 * dt * m_vg[i, j]
+            f[D_POS + i, D_ATT + j] = 0.5 * dt * m_va[i, j]
+            f[D_POS + i, D_BA + j] = -0.5 * dt * r_dt[i, j]
         f[D_ATT + i, D_BG + i] = -dt
         f[D_POS + i, D_VEL + i] = dt
         f[D_GW + i, D_GW + i] = math.exp(-dt / tau_w)
@@ -435,7 +461,7 @@ def error_transition(
 
 @njit
 def _apply_f(src: FloatArray, dst: FloatArray, rw: FloatArray, m_va: FloatArray, r_dt: FloatArray,
-             dt: float, decay: float) -> None:  # fmt: skip
+             m_vg: FloatArray, dt: float, decay: float) -> None:  # fmt: skip
     """``dst = F src`` for the block structure of :func:`error_transition` (``rw`` =
     R{w dt}, ``m_va`` = -R [a]x dt, ``r_dt`` = R dt): about 30 flops a column instead of
     the dense product's 18 x 18."""
@@ -443,12 +469,15 @@ def _apply_f(src: FloatArray, dst: FloatArray, rw: FloatArray, m_va: FloatArray,
         for i in range(3):
             dst[D_ATT + i, j] = (rw[0, i] * src[D_ATT, j] + rw[1, i] * src[D_ATT + 1, j]
                                  + rw[2, i] * src[D_ATT + 2, j] - dt * src[D_BG + i, j])  # fmt: skip
-            dst[D_VEL + i, j] = (src[D_VEL + i, j]
-                                 + m_va[i, 0] * src[D_ATT, j] + m_va[i, 1] * src[D_ATT + 1, j]
-                                 + m_va[i, 2] * src[D_ATT + 2, j]
-                                 - r_dt[i, 0] * src[D_BA, j] - r_dt[i, 1] * src[D_BA + 1, j]
-                                 - r_dt[i, 2] * src[D_BA + 2, j])  # fmt: skip
-            dst[D_POS + i, j] = src[D_POS + i, j] + dt * src[D_VEL + i, j]
+            inc = (m_va[i, 0] * src[D_ATT, j] + m_va[i, 1] * src[D_ATT + 1, j]
+                   + m_va[i, 2] * src[D_ATT + 2, j]
+                   - r_dt[i, 0] * src[D_BA, j] - r_dt[i, 1] * src[D_BA + 1, j]
+                   - r_dt[i, 2] * src[D_BA + 2, j]
+                   + m_vg[i, 0] * src[D_BG, j] + m_vg[i, 1] * src[D_BG + 1, j]
+                   + m_vg[i, 2] * src[D_BG + 2, j])  # fmt: skip
+            dst[D_VEL + i, j] = src[D_VEL + i, j] + inc
+            # the position takes half the tick's velocity change (p += v dt + a dt^2 / 2)
+            dst[D_POS + i, j] = src[D_POS + i, j] + dt * src[D_VEL + i, j] + 0.5 * dt * inc
             dst[D_BG + i, j] = src[D_BG + i, j]
             dst[D_BA + i, j] = src[D_BA + i, j]
             dst[D_GW + i, j] = decay * src[D_GW + i, j]
@@ -464,7 +493,6 @@ def _propagate(params: FloatArray, st: FloatArray, gyro: FloatArray, accel: Floa
         return
     nom = st[E_NOM : E_NOM + N_NOM]
     q = nom[N_Q : N_Q + 4]
-    r = rot_from_quat(q)
     w = np.empty(3)
     a = np.empty(3)
     for i in range(3):
@@ -473,14 +501,17 @@ def _propagate(params: FloatArray, st: FloatArray, gyro: FloatArray, accel: Floa
     # the specific force rotated with the attitude at the interval's middle: the error of
     # rotating it with the start attitude grows with the rate (a 45 deg/s pitch rate tilts
     # it by 0.2 deg over a 10 ms tick, which the filter would take for a bias)
+    q_start = q.copy()
     r_mid = rot_from_quat(quat_mul(q, quat_from_rotvec(0.5 * w[0] * dt, 0.5 * w[1] * dt, 0.5 * w[2] * dt)))
     ae = np.empty(3)
     for i in range(3):
         ae[i] = r_mid[i, 0] * a[0] + r_mid[i, 1] * a[1] + r_mid[i, 2] * a[2]
     ae[2] -= params[K_G]
+    decay = math.exp(-dt / params[K_WANDER_TAU])
     for i in range(3):
         nom[N_POS + i] += dt * nom[N_VEL + i] + 0.5 * dt * dt * ae[i]
         nom[N_VEL + i] += dt * ae[i]
+        nom[N_GW + i] *= decay  # the Gauss-Markov wander's mean decays toward zero
     dq = quat_from_rotvec(w[0] * dt, w[1] * dt, w[2] * dt)
     qn = quat_mul(q, dq)
     norm = math.sqrt(qn[0] * qn[0] + qn[1] * qn[1] + qn[2] * qn[2] + qn[3] * qn[3])
@@ -488,23 +519,11 @@ def _propagate(params: FloatArray, st: FloatArray, gyro: FloatArray, accel: Floa
         q[i] = qn[i] / norm
     # covariance: P <- F (F P)^T (P symmetric), then Q on the diagonal
     rw = rot_from_quat(dq)
-    m_va = np.empty((3, 3))
-    r_dt = np.empty((3, 3))
-    for i in range(3):
-        for j in range(3):
-            # -R [a]x dt: column j of [a]x is e_j x a... written out: ([a]x)[k, j] = -eps_kjl a_l
-            m_va[i, j] = 0.0
-            r_dt[i, j] = r[i, j] * dt
-    for i in range(3):
-        m_va[i, 0] = -(r[i, 1] * a[2] - r[i, 2] * a[1]) * dt
-        m_va[i, 1] = -(r[i, 2] * a[0] - r[i, 0] * a[2]) * dt
-        m_va[i, 2] = -(r[i, 0] * a[1] - r[i, 1] * a[0]) * dt
-    tau_w = params[K_WANDER_TAU]
-    decay = math.exp(-dt / tau_w)
+    m_va, r_dt, m_vg = _velocity_blocks(q_start, w, a, dt)
     p = _cov(st)
     tmp = np.empty((N_ERR, N_ERR))
-    _apply_f(p, tmp, rw, m_va, r_dt, dt, decay)
-    _apply_f(tmp.T, p, rw, m_va, r_dt, dt, decay)
+    _apply_f(p, tmp, rw, m_va, r_dt, m_vg, dt, decay)
+    _apply_f(tmp.T, p, rw, m_va, r_dt, m_vg, dt, decay)
     for i in range(3):
         p[D_ATT + i, D_ATT + i] += params[K_Q_GYRO] * dt
         p[D_VEL + i, D_VEL + i] += params[K_Q_ACCEL] * dt
@@ -1147,3 +1166,24 @@ def nees(st: FloatArray, err: FloatArray) -> float:
     ``e^T P_nav^-1 e`` with ``P_nav`` their block of the covariance (the marginal)."""
     p = _cov(st)
     return _cholesky_nis(p[:N_NAV, :N_NAV].copy(), err[:N_NAV].copy(), N_NAV)
+
+
+@njit
+def align(accel_flu: FloatArray, mag_flu: FloatArray, field_nwu: FloatArray) -> tuple[float, float, float]:
+    """ZYX Euler angles of a vehicle at rest from its accelerometer and magnetometer (TRIAD,
+    Shuster and Oh 1981): the specific force at rest is ``R^T (0, 0, g)``, the field
+    ``R^T m``; the first pair fixes the tilt exactly, the second the heading."""
+    b1 = accel_flu / math.sqrt(float(accel_flu @ accel_flu))
+    r1 = np.array([0.0, 0.0, 1.0])
+    b2 = np.cross(b1, mag_flu)
+    b2 = b2 / math.sqrt(float(b2 @ b2))
+    r2 = np.cross(r1, field_nwu)
+    r2 = r2 / math.sqrt(float(r2 @ r2))
+    mb = np.empty((3, 3))
+    me = np.empty((3, 3))
+    b3 = np.cross(b1, b2)
+    r3 = np.cross(r1, r2)
+    for i in range(3):
+        mb[i, 0], mb[i, 1], mb[i, 2] = b1[i], b2[i], b3[i]
+        me[i, 0], me[i, 1], me[i, 2] = r1[i], r2[i], r3[i]
+    return euler_from_rot(me @ mb.T)  # R maps the body triad onto the earth triad

@@ -14,6 +14,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import math
+from collections import OrderedDict, deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -105,7 +106,16 @@ CAPABILITIES = (
 )
 FORCE_DISARM_MAGIC = 21196
 RELATIVE_ALT_FRAMES = (m2.MAV_FRAME_GLOBAL_RELATIVE_ALT, m2.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT)
-MAX_DATAGRAMS_PER_POLL = 32  # per link and control tick (3200/s at 100 Hz)
+MAX_DATAGRAMS_PER_POLL = 32  # handled per link and control tick (3200/s at 100 Hz)
+# Read from the socket per link and tick, undecoded (2-6 us each, so at most a few ms of a
+# tick, and only while flooded): 100k datagrams/s at 100 Hz, faster than a Python socket
+# floods, so the kernel's buffer does not fill and drop the other clients' (see _FairInbox)
+MAX_READS_PER_POLL = 1024
+MAX_SENDERS = 64  # senders with datagrams waiting, per link
+# what one sender may have waiting, counted as the kernel counts a socket buffer (each
+# datagram's bytes and an overhead): ~400 small requests, room for any client's burst
+MAX_WAITING_PER_SENDER = 128 * 1024
+DATAGRAM_OVERHEAD = 256
 MAV_RESULT = {
     c.Result.ACCEPTED: m2.MAV_RESULT_ACCEPTED, c.Result.DENIED: m2.MAV_RESULT_DENIED,
     c.Result.UNSUPPORTED: m2.MAV_RESULT_UNSUPPORTED, c.Result.FAILED: m2.MAV_RESULT_FAILED,
@@ -152,6 +162,61 @@ class _Pending:
     say: bool = False  # no ACK, but the operator hears the reply's text (SET_MODE)
 
 
+class _FairInbox:
+    """One GCS socket's received datagrams, waiting per sender and handled round-robin.
+
+    The link handles a bounded number of datagrams per tick (decoding costs ~10-25 us each).
+    Taken first come first served, one flooding sender filled the socket's kernel buffer
+    (8 MiB: ~10,000 datagrams, 3 s of backlog at 3200/s), and while it was full the kernel
+    dropped every other client's datagrams: a ground station's PARAM_REQUEST_LIST sent
+    after a 20,000-datagram flood was never answered. So the socket is drained quickly
+    (undecoded), each sender's datagrams wait in their own queue, bounded (a sender over
+    its bound loses its newest datagrams, as a full socket would), and the handling budget
+    goes to the senders in turn: a client that asks is answered within a few ticks,
+    whatever another socket sends, even with the same system id (senders are told apart
+    by their address: a system id is anyone's to claim).
+    """
+
+    def __init__(self) -> None:
+        self._waiting: OrderedDict[Address, deque[bytes]] = OrderedDict()  # in turn order
+        self._cost: dict[Address, int] = {}
+        self.dropped = 0  # datagrams read but dropped: their sender was over its bound
+
+    def fill(self, datagrams: list[tuple[bytes, Address]]) -> None:
+        for data, addr in datagrams:
+            q = self._waiting.get(addr)
+            if q is None:
+                if len(self._waiting) >= MAX_SENDERS:
+                    self._drop_longest()  # many flooding sockets: a newcomer still gets in
+                q = self._waiting[addr] = deque()
+                self._cost[addr] = 0
+            cost = len(data) + DATAGRAM_OVERHEAD
+            if q and self._cost[addr] + cost > MAX_WAITING_PER_SENDER:
+                self.dropped += 1
+                continue
+            q.append(data)
+            self._cost[addr] += cost
+
+    def take(self, n: int) -> list[tuple[bytes, Address]]:
+        """Up to ``n`` datagrams, one per sender in turn (oldest first for each)."""
+        out: list[tuple[bytes, Address]] = []
+        while self._waiting and len(out) < n:
+            addr, q = self._waiting.popitem(last=False)
+            data = q.popleft()
+            out.append((data, addr))
+            if q:
+                self._waiting[addr] = q  # to the back of the line
+                self._cost[addr] -= len(data) + DATAGRAM_OVERHEAD
+            else:
+                del self._cost[addr]
+        return out
+
+    def _drop_longest(self) -> None:
+        addr = max(self._cost, key=self._cost.__getitem__)
+        self.dropped += len(self._waiting.pop(addr))
+        del self._cost[addr]
+
+
 class GcsService:
     """Owns the two GCS sockets and translates MAVLink to the flight manager's commands and
     its replies and events back; call it once per control tick (runner hooks)."""
@@ -175,6 +240,7 @@ class GcsService:
             MavlinkUdp((cfg.host, port), (cfg.host, to), system_id=cfg.system_id, drop_nonfinite=False)
             for port, to in ((cfg.local_gcs_port, cfg.gcs_port), (cfg.local_api_port, cfg.api_port))
         ]
+        self._inboxes = [_FairInbox() for _ in self.links]
         if cfg.signing_key is not None:
             for link in self.links:
                 link.setup_signing(cfg.signing_key, lambda msg_id: msg_id in UNSIGNED_OK)
@@ -214,7 +280,10 @@ class GcsService:
             link.close()
 
     def stats(self) -> dict[str, Any]:
-        out: dict[str, Any] = {f"gcs{i}": link.stats.as_dict() for i, link in enumerate(self.links)}
+        out: dict[str, Any] = {
+            f"gcs{i}": {**link.stats.as_dict(), "rx_dropped": inbox.dropped}
+            for i, (link, inbox) in enumerate(zip(self.links, self._inboxes, strict=True))
+        }
         out["handler_errors"] = self.handler_errors
         return out
 
@@ -235,14 +304,16 @@ class GcsService:
         """Input, between two ticks: commands, parameters, missions, setpoints (what
         changes the vehicle is queued for the next tick's start)."""
         self._t, self._x = t_s, x
-        for link in self.links:
-            # bounded: a flooding client costs at most this much per tick; the rest of its
-            # datagrams wait in the socket (and are dropped by the kernel if it overflows)
-            for msg, addr in link.recv(max_datagrams=MAX_DATAGRAMS_PER_POLL):
-                try:
-                    self._dispatch(link, addr, msg)
-                except Exception:  # a handler bug must not take the vehicle down
-                    self._handler_error(msg.get_type())
+        for link, inbox in zip(self.links, self._inboxes, strict=True):
+            # bounded: a flooding client costs at most this much per tick, and it cannot
+            # crowd out the others (it waits its turn among the senders: _FairInbox)
+            inbox.fill(link.recv_datagrams(max_datagrams=MAX_READS_PER_POLL))
+            for data, addr in inbox.take(MAX_DATAGRAMS_PER_POLL):
+                for msg in link._parse(data):  # the link's codec: signing, stats
+                    try:
+                        self._dispatch(link, addr, msg)
+                    except Exception:  # a handler bug must not take the vehicle down
+                        self._handler_error(msg.get_type())
         self._send_all(self.missions.tick(t_s))
 
     def after_tick(
