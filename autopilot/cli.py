@@ -177,6 +177,7 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
             runner = Runner(ctrl, manager, sim, servo_out, cfg, services, recorder, estimator)
             if gcs is not None:
                 gcs.truth = lambda: runner.sample
+                gcs.nav = lambda: runner.nav
             stats = runner.run(stop)
             link = sim.udp.stats.as_dict()
             asm = sim.assembler

@@ -297,7 +297,7 @@ class Runner:
             self.nav = OnboardEstimator(self.estimator, self.cfg.rate_hz, truth, self.manager.cfg.home)
         x_hat = self.nav.update(s.meas_t_s, s.meas, s.meas_mask)
         h = self.nav.health
-        self.manager.navigation(t_s, x_hat, h.gps_lost, h.n_rejected, h.n_resets)
+        self.manager.navigation(t_s, x_hat, h.gps_lost, h.n_rejected, h.n_resets, h.diverged)
         return x_hat
 
     def tick(self, t_s: float, x: FloatArray, t_us: int | None = None) -> FloatArray:

@@ -108,10 +108,12 @@ class MavProxy:
 
 
 @contextmanager
-def vehicle_and_mavproxy(tmp_path: Path, env: dict[str, str] | None = None) -> Iterator[tuple[MavProxy, int]]:
+def vehicle_and_mavproxy(
+    tmp_path: Path, env: dict[str, str] | None = None, *extra: str
+) -> Iterator[tuple[MavProxy, int]]:
     ports = free_ports()
     gcs = ports.gcs
-    up = spawn_up(ports)
+    up = spawn_up(ports, *extra)
     mp = None
     try:
         mp = MavProxy(gcs, tmp_path, env)
@@ -210,6 +212,44 @@ def test_mavproxy_status_params_and_a_flown_waypoint_file(tmp_path: Path) -> Non
         assert all(c < 1.0 for c in closest), closest
         assert pos[-1][2] < 0.1  # landed
     assert mp.proc.returncode == 1  # MAVProxy's exit status on EOF, whatever happened
+
+
+def _status(mp: MavProxy, kind: str) -> dict[str, float]:
+    """The fields of the newest ``kind`` as MAVProxy's ``status`` prints it."""
+    at = mp.send(f"status {kind}")
+    m = mp.expect(rf"\d+: {kind} \{{(.*)\}}", 5.0, at)  # maybe after MAVProxy's prompt
+    return {k.strip(): float(v) for k, v in (f.split(":") for f in m.group(1).split(","))}
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(240)
+def test_mavproxy_shows_the_ekf_status_and_the_gps_fix_honestly(tmp_path: Path) -> None:
+    """The consumer sensors (u-blox M8 class GPS, MPU-6000, HMC5883L, baro): MAVProxy reads
+    a 3-D fix with 14 satellites and the receiver's accuracy, and ArduPilot's
+    EKF_STATUS_REPORT with a healthy solution; SIM_GPS_DISABLE = 1 and it reads no fix, no
+    satellites, and an EKF in constant-position (dead-reckoning) mode."""
+    with vehicle_and_mavproxy(tmp_path, None, "--world", "consumer") as (mp, _):
+        mp.expect(r"online system 1", START_S)
+        time.sleep(2.0)
+        gps, ekf = _status(mp, "GPS_RAW_INT"), _status(mp, "EKF_STATUS_REPORT")
+        print(f"GPS_RAW_INT {gps}\nEKF_STATUS_REPORT {ekf}")
+        assert (gps["fix_type"], gps["satellites_visible"]) == (3, 14)
+        # the receiver's 1-sigma: sqrt(2.1^2 + 0.3^2) per axis, sqrt(2) of it horizontally
+        assert gps["h_acc"] == pytest.approx(1000 * math.sqrt(2.0) * math.hypot(2.1, 0.3), abs=15)  # cm on HIL_GPS
+        assert gps["eph"] == 65535  # no satellite geometry in the model: DOP unknown
+        flags = int(ekf["flags"])
+        assert flags & 1 and flags & 16 and not flags & 128  # attitude, absolute position
+        for k in ("velocity_variance", "pos_horiz_variance", "pos_vert_variance", "compass_variance"):
+            assert 0.0 < ekf[k] < 1.0, (k, ekf[k])  # inside the gates
+        at = mp.send("param set SIM_GPS_DISABLE 1")
+        mp.expect(r"GPS fix lost", 10.0, at)  # MAVProxy's own word, from GPS_RAW_INT
+        mp.expect(r"AP: GPS lost", 10.0, at)  # the vehicle's STATUSTEXT
+        time.sleep(0.5)
+        gps, ekf = _status(mp, "GPS_RAW_INT"), _status(mp, "EKF_STATUS_REPORT")
+        print(f"after SIM_GPS_DISABLE: GPS_RAW_INT {gps}\nEKF_STATUS_REPORT {ekf}")
+        assert (gps["fix_type"], gps["satellites_visible"]) == (1, 0)
+        flags = int(ekf["flags"])
+        assert flags & 128 and not flags & 16  # constant position mode, no absolute position
 
 
 def nwu_target(item: MissionItem) -> tuple[float, float, float]:

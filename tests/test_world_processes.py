@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -204,7 +205,16 @@ def test_gps_loss_over_the_ground_station_holds_then_lands(tmp_path: Path) -> No
 
     flight = threading.Thread(target=fly)
     flight.start()
+    seen: list[tuple[str, float, int, int]] = []  # what the ground station was told
+
+    def record(m: Any) -> None:
+        if m.get_type() == "GPS_RAW_INT":
+            seen.append(("gps", m.time_usec / 1e6, m.fix_type, m.satellites_visible))
+        elif m.get_type() == "ESTIMATOR_STATUS":
+            seen.append(("est", m.time_usec / 1e6, m.flags, 0))
+
     with GroundClient(gcs_port) as gc:
+        gc.listeners.append(record)
         gc.connect(60.0)
         time.sleep(3.0)
         assert gc.param_set("SIM_GPS_DISABLE", 1.0).accepted
@@ -229,3 +239,21 @@ def test_gps_loss_over_the_ground_station_holds_then_lands(tmp_path: Path) -> No
           f"landed at z = {pos[-1, 2]:.2f} m")
     assert drift < 3.0  # dead reckoning on an ideal IMU: the estimated bias error (1.5 m measured)
     assert pos[-1, 2] < 0.2  # on the ground
+    # the estimate's 2-sigma grows through the outage and covers the truth
+    sd = np.column_stack([est["sd_pos_n"], est["sd_pos_w"]])
+    err = np.abs(np.column_stack([est["x_est"] - run["x"], est["y_est"] - run["y"]]))
+    out = (run["t"] > t_lost) & (run["t"] < t_lost + 9.0)
+    covered = float(np.mean(err[out] <= 2.0 * sd[out]))
+    print(f"outage: position sigma {sd[out][0].round(3)} -> {sd[out][-1].round(3)} m; "
+          f"truth inside 2 sigma {100 * covered:.1f} % of the ticks")
+    assert np.all(sd[out][-1] > 2.0 * sd[out][0]) and covered >= 0.95
+    # the ground station was told the truth: a 3-D fix with 14 satellites before, no fix and
+    # no satellites from half a second after the last fix until it landed
+    gps = [(t, fix, sats) for kind, t, fix, sats in seen if kind == "gps"]
+    t_last_fix = t_lost - 1.0  # the estimator declares the GPS lost 1 s after its last fix
+    before = [g for g in gps if g[0] < t_last_fix - 0.5]
+    during = [g for g in gps if g[0] > t_last_fix + 0.6]
+    assert before and all(fix == 3 and sats == 14 for _, fix, sats in before), before[-3:]
+    assert during and all(fix == 1 and sats == 0 for _, fix, sats in during), during[:3]
+    flags = [f for kind, t, f, _ in seen if kind == "est" and t > t_lost + 0.5]
+    assert flags and all(f & 128 and not f & 16 for f in flags)  # CONST_POS_MODE, no POS_HORIZ_ABS

@@ -14,6 +14,7 @@ that filter's state array (:func:`nav_state_size`).
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -114,3 +115,58 @@ def nav_truth(params: FloatArray, st: FloatArray, x_true: FloatArray, gyro_bias_
     for i in range(3):
         row[L_ATT_ERR + i] = err[ins.D_ATT + i]
         row[L_GYRO_BIAS_ERR + i] = err[ins.D_BG + i]
+
+
+class NavStatus(NamedTuple):
+    """What the estimator tells a ground station (ESTIMATOR_STATUS, EKF_STATUS_REPORT,
+    SYS_STATUS): test ratios are ``sqrt(innovation^2 / (gate S))`` per measurement kind,
+    the largest component of the last one (1: at the gate, as ArduPilot reports them;
+    NaN: none yet); accuracies are 1-sigma."""
+
+    gps_lost: bool
+    diverged: bool
+    vel_ratio: float
+    pos_horiz_ratio: float
+    pos_vert_ratio: float  # the barometer's (the GPS height's without one)
+    mag_ratio: float  # NaN for ideal-ahrs (no magnetometer fusion)
+    pos_horiz_sd_m: float
+    pos_vert_sd_m: float
+    n_rejected: int  # GPS fixes refused by the gate so far
+    mag_ok: bool  # the magnetometer's samples pass their gate (or none are fused)
+
+
+def _ratio(y: float, s: float, gate: float) -> float:
+    return math.sqrt(y * y / (gate * s)) if math.isfinite(y) and s > 0.0 else math.nan
+
+
+def _worst(innov: FloatArray, s: FloatArray, gate: float, n: int) -> float:
+    """The largest test ratio of the first ``n`` components (NaN if none is known)."""
+    r = [_ratio(float(innov[i]), float(s[i]), gate) for i in range(n)]
+    known = [v for v in r if math.isfinite(v)]
+    return max(known) if known else math.nan
+
+
+def nav_status(params: FloatArray, st: FloatArray) -> NavStatus:
+    """The estimator's state for a ground station (either filter)."""
+    gps_lost, _, n_rej, _, _, diverged = nav_health(params, st)
+    k = params[N_HEADER:]
+    if params[H_KIND] == KIND_INS:
+        g1 = k[ins.K_GATE_1]
+        vel = _worst(st[ins.E_INNOV_VEL :], st[ins.E_S_VEL :], g1, 3)
+        pos_h = _worst(st[ins.E_INNOV_POS :], st[ins.E_S_POS :], g1, 2)
+        pos_v = _ratio(st[ins.E_BARO_INNOV], st[ins.E_BARO_S], g1)
+        mag_nis = st[ins.E_MAG_NIS]
+        mag = math.sqrt(mag_nis / k[ins.K_GATE_3]) if math.isfinite(mag_nis) else math.nan
+        p = st[ins.E_COV : ins.E_COV + ins.N_COV].reshape(ins.N_ERR, ins.N_ERR)
+        sd_h = math.sqrt(max(p[ins.D_POS, ins.D_POS], p[ins.D_POS + 1, ins.D_POS + 1]))
+        sd_v = math.sqrt(p[ins.D_POS + 2, ins.D_POS + 2])
+        t = st[ins.E_T]
+        mag_ok = not (t - st[ins.E_T_MAG_SEEN] <= 1.0 and t - st[ins.E_T_MAG_OK] > 1.0)
+        return NavStatus(gps_lost, diverged, vel, pos_h, pos_v, mag, sd_h, sd_v, n_rej, mag_ok)
+    g1 = float(k[kf.K_GATE_BARO])
+    vel = _worst(st[kf.E_INNOV_VEL :], st[kf.E_S_VEL :], g1, 3)
+    pos_h = _worst(st[kf.E_INNOV_POS :], st[kf.E_S_POS :], g1, 2)
+    pos_v = _ratio(st[kf.E_BARO_INNOV], st[kf.E_BARO_S], g1)
+    sd_h = math.sqrt(max(st[kf.E_P + kf.COV_PP], st[kf.E_P + kf.N_COV + kf.COV_PP]))
+    sd_v = math.sqrt(st[kf.E_P + 2 * kf.N_COV + kf.COV_PP])
+    return NavStatus(gps_lost, diverged, vel, pos_h, pos_v, math.nan, sd_h, sd_v, n_rej, True)

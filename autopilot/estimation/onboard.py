@@ -16,7 +16,16 @@ import numpy as np
 
 from autopilot.estimation.config import EstimatorConfig
 from autopilot.estimation.log import N_EST_LOG
-from autopilot.estimation.nav import make_nav_params, nav_health, nav_init, nav_log, nav_state_size, nav_tick
+from autopilot.estimation.nav import (
+    NavStatus,
+    make_nav_params,
+    nav_health,
+    nav_init,
+    nav_log,
+    nav_state_size,
+    nav_status,
+    nav_tick,
+)
 from heli_common.geo import GeoPoint
 from heli_common.measurements import N_OUT, OUT_ACCEL
 from heli_common.state import N_STATE, FloatArray
@@ -49,6 +58,7 @@ class OnboardEstimator:
         nav_init(self.params, self.state, x)
         self.x_hat = x.copy()
         self.log_row = np.full(N_EST_LOG, math.nan)
+        self.meas = np.full(N_OUT, math.nan)  # the sensors' latest samples (the receiver's status)
         self._t_s = -math.inf
 
     def warm_up(self) -> None:
@@ -64,6 +74,7 @@ class OnboardEstimator:
         the previous one if ``t_s`` did not advance."""
         if t_s > self._t_s:
             self._t_s = t_s
+            self.meas = meas
             gps = nav_tick(self.params, self.state, t_s, meas, mask, self.x_hat)
             nav_log(self.params, self.state, gps, self.log_row)
         return self.x_hat
@@ -71,3 +82,12 @@ class OnboardEstimator:
     @property
     def health(self) -> NavHealth:
         return NavHealth(*nav_health(self.params, self.state))
+
+    @property
+    def status(self) -> NavStatus:
+        return nav_status(self.params, self.state)
+
+    @property
+    def t_s(self) -> float:
+        """The sensors' time of the last update (-inf before the first)."""
+        return self._t_s

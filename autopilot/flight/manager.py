@@ -85,6 +85,7 @@ class FlightManager:
         self._t = 0.0
         self._x: FloatArray = np.zeros(12)
         self.gps_lost_since: float | None = None  # flight time the GPS was declared lost
+        self.nav_diverged = False  # the navigation filter said it diverged (latched: it lands)
         self._nav_seen = (0, 0)  # rejected fixes and estimator resets already reported
 
     def set_mission_source(self, mission: Callable[[], tuple[MissionItem, ...]]) -> None:
@@ -311,12 +312,22 @@ class FlightManager:
             self._offboard.received_t_s += gap_s
         self._say(c.Severity.WARNING, f"Control resumed after a {gap_s:.1f} s gap"[:50])
 
-    def navigation(self, t_s: float, x: FloatArray, gps_lost: bool, n_rejected: int, n_resets: int) -> None:
+    def navigation(self, t_s: float, x: FloatArray, gps_lost: bool, n_rejected: int, n_resets: int,
+                   diverged: bool = False) -> None:  # fmt: skip
         """The estimator's health, before each tick when flying from sensors. GPS lost in
         flight: hold where the estimate is (it dead-reckons on the IMU), and land after
         ``gps_loss_land_after_s`` without a fix; the operator is told each step, and of
-        rejected fixes (a glitch, a frozen or biased receiver) and estimator resets."""
+        rejected fixes (a glitch, a frozen or biased receiver) and estimator resets. A
+        diverged navigation filter (its innovations out of their gates for its
+        ``divergence_s``): land at once, said once; nothing better is known of where it is."""
         self._t, self._x = t_s, x
+        if diverged and not self.nav_diverged:
+            self.nav_diverged = True
+            self._say(c.Severity.CRITICAL, "Navigation filter diverged: landing")
+            if self.flight.armed and self.flight.mode is not Mode.LAND and not landed(x):
+                self.mission_on_arm = False
+                self._offboard = None
+                self._land(c.Land())
         rej, res = self._nav_seen
         if n_resets > res:
             self._say(c.Severity.WARNING, "GPS jump: position estimate reset")

@@ -21,7 +21,8 @@ from typing import Any
 
 import numpy as np
 
-from autopilot import telemetry
+from autopilot import nav_telemetry, telemetry
+from autopilot.estimation.onboard import OnboardEstimator
 from autopilot.flight import commands as c
 from autopilot.flight.manager import FlightManager, LandedState, MissionState
 from autopilot.flight.modes import Mode
@@ -75,6 +76,8 @@ UNSIGNED_OK = frozenset({
     m2.MAVLINK_MSG_ID_REQUEST_DATA_STREAM,
 })  # fmt: skip
 
+MSG_ID_EKF_STATUS_REPORT = 193  # ardupilotmega.xml
+
 DEFAULT_RATES_HZ: dict[int, float] = {
     m2.MAVLINK_MSG_ID_HEARTBEAT: 1.0,
     m2.MAVLINK_MSG_ID_SYS_STATUS: 1.0,
@@ -92,6 +95,9 @@ DEFAULT_RATES_HZ: dict[int, float] = {
     m2.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW: 10.0,
     m2.MAVLINK_MSG_ID_MISSION_CURRENT: 1.0,
     m2.MAVLINK_MSG_ID_VFR_HUD: 4.0,
+    m2.MAVLINK_MSG_ID_ESTIMATOR_STATUS: 2.0,  # where the vehicle flies from sensors
+    MSG_ID_EKF_STATUS_REPORT: 2.0,  # ArduPilot's, for MAVProxy and Mission Planner
+    m2.MAVLINK_MSG_ID_SIM_STATE: 10.0,  # the truth, for logs
     wm.MSG_ID_CURRENT_MODE: 1.0,
     wm.MSG_ID_AVAILABLE_MODES_MONITOR: 0.2,
 }
@@ -261,6 +267,8 @@ class GcsService:
         self._armed_sent = False
         # the world's truth of the latest tick (set by whoever runs the loop; None: none)
         self.truth: Callable[[], StateSample | None] | None = None
+        # the estimator the vehicle flies on, when it flies from sensors (the runner's)
+        self.nav: Callable[[], OnboardEstimator | None] | None = None
         self._errors = RateLimitedLog(log, interval_s=10.0)
         self.handler_errors = 0
         self._pending: list[_Pending] = []
@@ -415,13 +423,18 @@ class GcsService:
                 t_ms, lat, lon, int(geo.alt_amsl_m * 1000), int(x[POS][2] * 1000),
                 *(int(round(v * 100)) for v in vel_ned), int(heading * 100) % 36000,
             )  # fmt: skip
+        nav = self.nav() if self.nav is not None else None
         if msg_id == m2.MAVLINK_MSG_ID_GPS_RAW_INT:
-            ground = math.hypot(vel_ned[0], vel_ned[1])
-            cog = math.degrees(math.atan2(vel_ned[1], vel_ned[0])) % 360.0
-            return m2.MAVLink_gps_raw_int_message(
-                t_us, m2.GPS_FIX_TYPE_3D_FIX, lat, lon, int(geo.alt_amsl_m * 1000),
-                80, 120, int(ground * 100), int(cog * 100) % 36000, 14,
-            )  # fmt: skip
+            if nav is None:
+                return nav_telemetry.gps_raw_int(t_us, home, x, None, None)
+            return nav_telemetry.gps_raw_int(t_us, home, x, nav.meas, nav.status, nav.t_s)
+        if msg_id == m2.MAVLINK_MSG_ID_ESTIMATOR_STATUS:
+            return None if nav is None else nav_telemetry.estimator_status(t_us, nav.status)
+        if msg_id == MSG_ID_EKF_STATUS_REPORT:
+            return None if nav is None else nav_telemetry.ekf_status_report(nav.status)
+        if msg_id == m2.MAVLINK_MSG_ID_SIM_STATE:
+            sample = self.truth() if self.truth is not None else None
+            return None if sample is None else nav_telemetry.sim_state(home, sample.x)
         if msg_id == m2.MAVLINK_MSG_ID_HOME_POSITION:
             return m2.MAVLink_home_position_message(
                 int(round(home.lat_deg * 1e7)), int(round(home.lon_deg * 1e7)),
@@ -472,14 +485,14 @@ class GcsService:
         QGC). There is no geofence: its bit is set in health only, which MAVLink defines as
         "no error" (MAVProxy reads a clear geofence health bit as a breach)."""
         mgr = self.manager
-        state_link = (m2.MAV_SYS_STATUS_SENSOR_3D_GYRO | m2.MAV_SYS_STATUS_SENSOR_3D_ACCEL
-                      | m2.MAV_SYS_STATUS_AHRS | m2.MAV_SYS_STATUS_SENSOR_GPS)  # fmt: skip
+        nav = self.nav() if self.nav is not None else None
+        plant_ok = mgr is None or not mgr.plant_lost
+        sensors, sensors_ok = nav_telemetry.sensor_bits(
+            None if nav is None else nav.meas, None if nav is None else nav.status, plant_ok)
         outputs = m2.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS
         prearm = m2.MAV_SYS_STATUS_PREARM_CHECK
-        present = state_link | outputs | prearm
-        healthy = outputs | m2.MAV_SYS_STATUS_GEOFENCE
-        if mgr is None or not mgr.plant_lost:
-            healthy |= state_link
+        present = sensors | outputs | prearm
+        healthy = outputs | m2.MAV_SYS_STATUS_GEOFENCE | sensors_ok
         if mgr is not None and mgr.armable():
             healthy |= prearm
         return m2.MAVLink_sys_status_message(present, present, healthy, 100, 0xFFFF, -1, -1,
@@ -493,8 +506,14 @@ class GcsService:
         lo, hi = self.limits[0]
         throttle = int(round(100.0 * min(max((self._u[0] - lo) / (hi - lo), 0.0), 1.0)))
         alt = self.cfg.home.alt_amsl_m + float(self._x[POS][2])
-        # no wind in this world yet: the airspeed is the ground speed
-        return m2.MAVLink_vfr_hud_message(ground, ground, heading, throttle, alt, -vel_ned[2])
+        # the airspeed: the vehicle's velocity through the air the world reports at it (a
+        # helicopter has no airspeed sensor; without a world's truth, still air)
+        sample = self.truth() if self.truth is not None else None
+        air = ground
+        if sample is not None and sample.air_nwu_m_s is not None and np.all(np.isfinite(sample.air_nwu_m_s)):
+            v = rot_body_to_earth(*sample.x[EULER]) @ sample.x[VEL]
+            air = float(np.linalg.norm(v - np.asarray(sample.air_nwu_m_s)))
+        return m2.MAVLink_vfr_hud_message(air, ground, heading, throttle, alt, -vel_ned[2])
 
     def _vel_ned(self) -> tuple[float, float, float]:
         e = self._x[EULER]
