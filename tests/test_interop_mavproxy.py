@@ -234,8 +234,9 @@ def test_mavproxy_shows_the_ekf_status_and_the_gps_fix_honestly(tmp_path: Path) 
         gps, ekf = _status(mp, "GPS_RAW_INT"), _status(mp, "EKF_STATUS_REPORT")
         print(f"GPS_RAW_INT {gps}\nEKF_STATUS_REPORT {ekf}")
         assert (gps["fix_type"], gps["satellites_visible"]) == (3, 14)
-        # the receiver's 1-sigma: sqrt(2.1^2 + 0.3^2) per axis, sqrt(2) of it horizontally
-        assert gps["h_acc"] == pytest.approx(1000 * math.sqrt(2.0) * math.hypot(2.1, 0.3), abs=15)  # cm on HIL_GPS
+        # the receiver's 1-sigma: sqrt(2.1^2 + 0.3^2) per axis, sqrt(2) of it horizontally (in
+        # mm; HIL_GPS carries it in cm)
+        assert gps["h_acc"] == pytest.approx(1000 * math.sqrt(2.0) * math.hypot(2.1, 0.3), abs=15)
         assert gps["eph"] == 65535  # no satellite geometry in the model: DOP unknown
         flags = int(ekf["flags"])
         assert flags & 1 and flags & 16 and not flags & 128  # attitude, absolute position
