@@ -212,6 +212,45 @@ def plot_estimate(
     return path
 
 
+ATTITUDE_FIGURE = "fig11b_attitude.png"
+
+
+def plot_attitude_estimate(
+    t: npt.NDArray[np.float64], att_err_rad: npt.NDArray[np.float64], sd_att_rad: npt.NDArray[np.float64],
+    gyro_bias_err: npt.NDArray[np.float64], sd_gyro_bias: npt.NDArray[np.float64], out_dir: Path,
+    title: str = "",
+) -> Path | None:  # fmt: skip
+    """Fig 11b, the navigation filter: its true attitude error about body x, y, z and its
+    gyro-bias error, each with the filter's own +-2 sigma (est.csv's att_err, sd_att,
+    gyro_bias_err, sd_gyro_bias). None when the log has no truth (over processes, or the
+    attitude source)."""
+    if not np.any(np.isfinite(att_err_rad)):
+        return None
+    out_dir.mkdir(parents=True, exist_ok=True)
+    path = out_dir / ATTITUDE_FIGURE
+    fig, axs = plt.subplots(3, 2, figsize=(11, 7.5), sharex=True)
+    for i, axis in enumerate("xyz"):
+        for col, (err, sd, unit, what) in enumerate((
+            (att_err_rad, sd_att_rad, "deg", "attitude error"),
+            (gyro_bias_err, sd_gyro_bias, "deg/s", "gyro bias error"),
+        )):  # fmt: skip
+            a = axs[i, col]
+            a.fill_between(t, -2 * np.degrees(sd[:, i]), 2 * np.degrees(sd[:, i]), color="0.85",
+                           label="the filter's own +-2 sigma")  # fmt: skip
+            a.plot(t, np.degrees(err[:, i]), "b", lw=0.8, label="truth - estimate")
+            a.set_ylabel(f"{what} {axis} [{unit}]")
+            a.grid(alpha=0.3)
+    axs[0, 0].legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=2, frameon=False, fontsize=8)
+    for a in axs[-1]:
+        a.set_xlabel("t [s]")
+    suffix = f" - {title}" if title else ""
+    fig.suptitle(f"Fig. 11b: the navigation filter's attitude and gyro bias vs truth{suffix}", fontsize=10)
+    fig.tight_layout(rect=(0.0, 0.0, 1.0, 0.95))
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
 ROTOR_FIGURE = "fig12_rotor.png"
 
 

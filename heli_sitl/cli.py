@@ -10,7 +10,7 @@ import argparse
 import json
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from heli_common import cli_args as arg
 from heli_common.defaults import HOME, Exit, ports
@@ -38,7 +38,7 @@ def _simulate(args: argparse.Namespace) -> int:
     from autopilot.estimation.config import EstimatorConfig
     from autopilot.pid.gains import PidGains
     from autopilot.scenario import Scenario
-    from ground.plots import plot_estimate, plot_figures, plot_rotor, plot_world
+    from ground.plots import plot_attitude_estimate, plot_estimate, plot_figures, plot_rotor, plot_world
     from heli_common.plant_model import PlantModel
     from heli_sitl.closed_loop import SimOptions, simulate
 
@@ -82,6 +82,19 @@ def _simulate(args: argparse.Namespace) -> int:
         figs.append(plot_estimate(record.t_s, record.x[:, 0:3], record.x_hat[:, 0:3], record.est_log[:, 0:3],
                                   out, title=f"{title}, world {world_name}"))  # fmt: skip
         figs.append(out / "est.csv")
+        from autopilot.estimation.log import EST_LOG_COLUMNS
+
+        log = record.est_log
+
+        def block(name: str) -> Any:
+            i = EST_LOG_COLUMNS.index(f"{name}_x")
+            return log[:, i : i + 3]
+
+        fig = plot_attitude_estimate(record.t_s, block("att_err"), block("sd_att"), block("gyro_bias_err"),
+                                     block("sd_gyro_bias"), out,
+                                     title=f"{title}, world {world_name}")  # fmt: skip
+        if fig is not None:
+            figs.append(fig)
     from autopilot.flight_metrics import FlightMetrics
 
     print(rms_line(FlightMetrics.of(record)))

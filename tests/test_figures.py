@@ -142,3 +142,14 @@ def test_fig11_says_what_the_band_and_the_line_are(tmp_path: Path, drawn: Callab
     assert "2-sigma" in caption and "reports for itself" in caption and "estimate - truth" in caption
     labels = [x.get_text() for x in fig.axes[0].get_legend().get_texts()]
     assert any("own +-2 sigma" in s for s in labels) and any("estimate - truth" in s for s in labels)
+
+
+def test_fig11b_draws_attitude_and_bias_errors_only_where_the_truth_is_known(tmp_path: Path) -> None:
+    from ground.plots import ATTITUDE_FIGURE, plot_attitude_estimate
+
+    t = np.linspace(0.0, 10.0, 101)
+    e = np.column_stack([0.01 * np.sin(t)] * 3)
+    sd = np.full((t.size, 3), 0.02)
+    assert plot_attitude_estimate(t, np.full_like(e, np.nan), sd, e, sd, tmp_path) is None
+    path = plot_attitude_estimate(t, e, sd, e, sd, tmp_path, title="t")
+    assert path == tmp_path / ATTITUDE_FIGURE and path.stat().st_size > 10_000
