@@ -224,6 +224,19 @@ def test_gps_loss_holds_then_lands_and_says_so(mgr: FlightManager) -> None:
     ]
 
 
+def test_a_diverged_navigation_filter_lands_at_once_and_says_so_once(mgr: FlightManager) -> None:
+    x = hovering(10.0)
+    mgr.execute(c.FlyTrajectory(StraightLine((0.0, 0.0, 10.0), (1.0, 0.0, 0.0), 60.0)), 0.0, x)
+    mgr.execute(c.Arm(), 0.0, x)
+    mgr.navigation(5.0, x, False, 0, 0, diverged=False)
+    assert mgr.mode is Mode.AUTO
+    mgr.navigation(5.01, x, False, 0, 0, diverged=True)
+    assert mgr.mode is Mode.LAND
+    mgr.navigation(5.02, x, False, 0, 0, diverged=True)
+    texts = [(e.severity, e.text) for e in mgr.take_events() if isinstance(e, c.Text)]
+    assert texts == [(c.Severity.CRITICAL, "Navigation filter diverged: landing")]
+
+
 def test_gps_loss_on_the_ground_is_only_reported(mgr: FlightManager) -> None:
     mgr.navigation(1.0, ON_GROUND, True, 0, 0)
     assert not mgr.armed and mgr.mode is not Mode.LAND

@@ -183,3 +183,26 @@ def test_attitude_and_tracking_when_flying_on_the_filter(world: str, att_deg: fl
     att = np.degrees(np.sqrt(np.nanmean(f.record.est_log[:, i : i + 3] ** 2, axis=0)))
     print(f"{world}: attitude error RMS {att.round(3)} deg; RMS [45, 120] {f.metrics.rms_45_m:.4f} m")
     assert att.max() < att_deg and f.metrics.rms_45_m < rms_m
+
+
+def test_a_filter_whose_fixes_keep_failing_their_gate_declares_itself_diverged() -> None:
+    """A receiver running away (each fix 20 m on from the last, its velocity zero): each run
+    of rejections ends in a reset that the next fix fails again; after divergence_s (5 s)
+    without a fix inside its gate, the filter says it diverged (and stays so). Fixes that
+    agree never trip it."""
+    for jumping in (False, True):
+        k, st = _filter()
+        ins.est_init(k, st, np.zeros(12))
+        r = rot_body_to_earth(0.0, 0.0, 0.0)
+        for i in range(1001):
+            t = i * 0.01
+            ins.est_predict(k, st, t, np.zeros(3), r.T @ np.array([0.0, 0.0, G]))
+            ins.est_mag(k, st, t, r.T @ HOME_FIELD)
+            if i % 20 == 0:
+                off = 20.0 * (i // 20 - 9) if jumping and t >= 2.0 else 0.0
+                ins.est_gps(k, st, t, np.array([off, 0.0, 0.0]), np.zeros(3))
+            ins._check_divergence(k, st)
+            if jumping and t < 6.8:  # the last fix inside the gate was at 1.8 s
+                assert st[ins.E_DIVERGED] == 0.0, t
+        assert st[ins.E_DIVERGED] == (1.0 if jumping else 0.0)
+        assert (st[ins.E_N_RESET] > 0) == jumping

@@ -185,6 +185,7 @@ FILTER = Layout(
     ("accel_prev", 3),
     ("t_fix", 1),  # validity time of the newest accepted GPS fix (the first tick before any)
     ("t_fix_seen", 1),  # validity time of the newest GPS fix received, accepted or not
+    ("t_fix_gated", 1),  # validity time of the newest fix that passed the gate (not a reset)
     ("t_mag_ok", 1),  # time of the newest accepted magnetometer heading
     ("t_mag_seen", 1),
     ("n_fix", 1),
@@ -226,6 +227,7 @@ E_GYRO_PREV = FILTER.offset("gyro_prev")
 E_ACCEL_PREV = FILTER.offset("accel_prev")
 E_T_FIX = FILTER.offset("t_fix")
 E_T_FIX_SEEN = FILTER.offset("t_fix_seen")
+E_T_FIX_GATED = FILTER.offset("t_fix_gated")
 E_T_MAG_OK = FILTER.offset("t_mag_ok")
 E_T_MAG_SEEN = FILTER.offset("t_mag_seen")
 E_N_FIX = FILTER.offset("n_fix")
@@ -687,6 +689,7 @@ def _apply_gps(params: FloatArray, st: FloatArray, flag: float, t_fix: float, po
             flag = M_ACCEPTED
             st[E_N_FIX] += 1.0
             st[E_N_CONSEC] = 0.0
+            st[E_T_FIX_GATED] = max(st[E_T_FIX_GATED], t_fix)
         elif st[E_N_CONSEC] >= params[K_MAX_REJECTS]:
             flag = M_RESET
             st[E_N_RESET] += 1.0
@@ -810,7 +813,6 @@ def _apply_mag(params: FloatArray, st: FloatArray, flag: float, t_meas: float, f
             flag = M_RESET
             st[E_N_MAG_RESET] += 1.0
             st[E_N_MAG_CONSEC] = 0.0
-            st[E_T_MAG_OK] = max(st[E_T_MAG_OK], t_meas)
         else:
             st[E_N_MAG_REJECT] += 1.0
             st[E_N_MAG_CONSEC] += 1.0
@@ -1010,6 +1012,7 @@ def est_predict(params: FloatArray, st: FloatArray, t_s: float, gyro: FloatArray
     if math.isnan(st[E_T]):
         st[E_T] = t_s
         st[E_T_FIX] = t_s
+        st[E_T_FIX_GATED] = t_s
         st[E_T_MAG_OK] = t_s
         st[E_GYRO_PREV : E_GYRO_PREV + 3] = st[E_GYRO : E_GYRO + 3]
         st[E_ACCEL_PREV : E_ACCEL_PREV + 3] = st[E_ACCEL : E_ACCEL + 3]
@@ -1066,7 +1069,7 @@ def _check_divergence(params: FloatArray, st: FloatArray) -> None:
     lim = params[K_DIVERGENCE_S]
     bad = not np.all(np.isfinite(st[E_NOM : E_COV + N_COV]))  # the nominal state and the covariance
     delivering = t - st[E_T_FIX_SEEN] <= params[K_GPS_TIMEOUT]
-    if delivering and t - st[E_T_FIX] > lim:
+    if delivering and t - st[E_T_FIX_GATED] > lim:  # resets are not health
         bad = True
     if t - st[E_T_MAG_SEEN] <= lim and t - st[E_T_MAG_OK] > lim:
         bad = True
