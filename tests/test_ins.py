@@ -177,7 +177,7 @@ def test_attitude_and_tracking_when_flying_on_the_filter(world: str, att_deg: fl
     import heli_sitl as hs
     from autopilot.estimation.log import EST_LOG_COLUMNS
 
-    f = hs.simulate(world=world)
+    f = hs.simulate(world=world, estimator=EstimatorConfig(attitude="ins"))
     assert f.record is not None and f.record.est_log is not None and f.metrics is not None
     i = EST_LOG_COLUMNS.index("att_err_x")
     att = np.degrees(np.sqrt(np.nanmean(f.record.est_log[:, i : i + 3] ** 2, axis=0)))

@@ -240,7 +240,7 @@ def test_mavproxy_shows_the_ekf_status_and_the_gps_fix_honestly(tmp_path: Path) 
         assert gps["eph"] == 65535  # no satellite geometry in the model: DOP unknown
         flags = int(ekf["flags"])
         assert flags & 1 and flags & 16 and not flags & 128  # attitude, absolute position
-        for k in ("velocity_variance", "pos_horiz_variance", "pos_vert_variance", "compass_variance"):
+        for k in ("velocity_variance", "pos_horiz_variance", "pos_vert_variance"):
             assert 0.0 < ekf[k] < 1.0, (k, ekf[k])  # inside the gates
         at = mp.send("param set SIM_GPS_DISABLE 1")
         mp.expect(r"GPS fix lost", 10.0, at)  # MAVProxy's own word, from GPS_RAW_INT

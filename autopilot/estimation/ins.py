@@ -740,20 +740,21 @@ def _euler(st: FloatArray) -> tuple[float, float, float]:
 
 
 @njit
-def _reset_yaw(params: FloatArray, st: FloatArray, psi: float) -> None:
-    """Yaw set to the measured heading; the attitude error's cross-covariance cleared and
-    its heading variance set to the measurement's (roll and pitch variances kept)."""
-    phi, theta, _ = _euler(st)
-    q = quat_from_euler(phi, theta, psi)
-    st[E_NOM + N_Q : E_NOM + N_Q + 4] = q
+def _realign(params: FloatArray, st: FloatArray, field_flu: FloatArray) -> None:
+    """Attitude realigned as at a start (:func:`align`, from the latest specific force and
+    the body field): roll and pitch from gravity, yaw from the compass; the attitude error's
+    cross-covariance cleared and its variance the initial one. What a compass rejected
+    for long means: the attitude itself is wrong (a touchdown levels the vehicle in one
+    step, which no gyro sees), not the compass."""
+    m_e = params[K_MAG_FIELD : K_MAG_FIELD + 3].copy()
+    phi, theta, psi = align(st[E_ACCEL : E_ACCEL + 3].copy(), field_flu, m_e)
+    st[E_NOM + N_Q : E_NOM + N_Q + 4] = quat_from_euler(phi, theta, psi)
     p = _cov(st)
-    keep0, keep1 = p[D_ATT, D_ATT], p[D_ATT + 1, D_ATT + 1]
     for i in range(3):
         for j in range(N_ERR):
             p[D_ATT + i, j] = 0.0
             p[j, D_ATT + i] = 0.0
-    p[D_ATT, D_ATT], p[D_ATT + 1, D_ATT + 1] = keep0, keep1
-    p[D_ATT + 2, D_ATT + 2] = params[K_R_MAG]
+        p[D_ATT + i, D_ATT + i] = params[K_P0 + D_ATT + i]
 
 
 @njit
@@ -808,8 +809,8 @@ def _apply_mag(params: FloatArray, st: FloatArray, flag: float, t_meas: float, f
             st[E_N_MAG_CONSEC] = 0.0
             st[E_T_MAG_OK] = max(st[E_T_MAG_OK], t_meas)
         elif st[E_N_MAG_CONSEC] >= params[K_MAX_REJECTS] * 10.0:
-            # a field persistently away from the prediction (a yaw that drifted while the
-            # compass was off, or a bad start) is believed: yaw reset to the compass heading
+            # a field persistently away from the prediction (an attitude that drifted while
+            # the compass was off, a touchdown, a bad start) is believed: realigned
             flag = M_RESET
             st[E_N_MAG_RESET] += 1.0
             st[E_N_MAG_CONSEC] = 0.0
@@ -818,11 +819,10 @@ def _apply_mag(params: FloatArray, st: FloatArray, flag: float, t_meas: float, f
             st[E_N_MAG_CONSEC] += 1.0
             return M_NONE
     if flag == M_RESET:
-        phi, theta, _ = _euler(st)
         m = np.empty(3)
         for i in range(3):
             m[i] = field[i] - params[K_MAG_OFFSETS + i] - st[E_NOM + N_BM + i]
-        _reset_yaw(params, st, mag_heading(m, phi, theta, params[K_DECLINATION]))
+        _realign(params, st, m)
         return flag
     dx = np.zeros(N_ERR)
     h = np.zeros(N_ERR)
