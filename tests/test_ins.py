@@ -67,7 +67,7 @@ def test_error_transition_matches_finite_differences() -> None:
     # the start's: they differ by O(w dt) in the velocity-attitude block
     err = np.abs(num - f)
     print(f"max |F - F_fd| = {err.max():.2e} at {np.unravel_index(err.argmax(), err.shape)}")
-    assert err.max() < 1e-4  # the rest: the half-tick rotation's Jacobian taken as I
+    assert err.max() < 6e-5  # the rest (3.9e-5): the half-tick rotation's Jacobian taken as I
     assert np.abs(num[ins.D_VEL : ins.D_VEL + 3, ins.D_ATT : ins.D_ATT + 3]).max() > 0.05  # a real block
 
 
@@ -148,7 +148,7 @@ def test_the_yaw_gyro_bias_is_observable_in_a_turn_and_not_in_a_hover(omega: flo
     if omega == 0.0:
         assert sd > 0.9 * sd0  # nothing tells a hovering filter its heading without a compass
     else:
-        assert sd < 0.1 * sd0 and abs(est - bias) < 3.0 * sd
+        assert sd < 0.008 * sd0 and abs(est - bias) < 3.0 * sd  # 0.0019 of 0.5 deg/s measured
 
 
 def test_the_filter_is_consistent_over_20_seeded_flights_of_the_consumer_sensors() -> None:
@@ -164,11 +164,11 @@ def test_the_filter_is_consistent_over_20_seeded_flights_of_the_consumer_sensors
     print(c.table())
     assert c.consistent and c.in_band > 0.75
     assert c.gyro_bias_z_max < 3.0
-    assert max(c.att_rms_deg) < 0.25
+    assert max(c.att_rms_deg) < 0.2
 
 
 @pytest.mark.parametrize(("world", "att_deg", "rms_m"),
-                         [("gps-typical", 0.1, 0.5), ("imu-consumer", 0.25, 0.06)])  # fmt: skip
+                         [("gps-typical", 0.1, 0.5), ("imu-consumer", 0.2, 0.06)])  # fmt: skip
 def test_attitude_and_tracking_when_flying_on_the_filter(world: str, att_deg: float, rms_m: float) -> None:
     """The paper scenario on the navigation filter (default tuning): the true attitude error
     RMS (0.02-0.06 deg with gps-typical, 0.03-0.11 deg with imu-consumer measured) and the
