@@ -63,7 +63,9 @@ class Gps:
     """Position and velocity (earth NWU): truth + first-order Gauss-Markov wander + white
     noise (position), truth + white noise (velocity), sampled at ``rate_hz``, delivered
     ``lag_s`` after the time it is valid at. The ``_h`` numbers apply to each horizontal
-    axis (north, west), the ``_v`` ones to up. ``disabled``: GPS loss, no fix delivered."""
+    axis (north, west), the ``_v`` ones to up. ``disabled``: GPS loss, no fix delivered;
+    ``outage_start_s`` / ``outage_s``: a timed loss (fixes valid in that window are not
+    delivered), the scripted form of a ground station setting SIM_GPS_DISABLE."""
 
     on: bool = spec(default=False)
     rate_hz: float = spec("Hz", 0.0, 1e3, lo_open=True, default=5.0)
@@ -75,6 +77,8 @@ class Gps:
     wander_tau_s: float = spec("s", 0.0, 1e6, lo_open=True, default=60.0)
     vel_noise_m_s: float = spec("m/s", 0.0, 100.0, default=0.0)
     disabled: bool = spec(default=False)
+    outage_start_s: float = spec("s", 0.0, 1e6, default=0.0)
+    outage_s: float = spec("s", 0.0, 1e6, default=0.0)
     # what the receiver reports while it has a fix (HIL_GPS satellites_visible); the
     # accuracies it reports (eph, epv) follow from the noise numbers above
     satellites: int = spec("", 0, 40, default=14)
@@ -156,7 +160,8 @@ class Sensors:
     @property
     def faults_on(self) -> bool:
         i, g, a, b, m = self.imu, self.gps, self.attitude, self.baro, self.mag
-        return (i.freeze or any(i.gyro_step_rad_s) or any(i.accel_step_m_s2) or g.disabled or g.freeze
+        return (i.freeze or any(i.gyro_step_rad_s) or any(i.accel_step_m_s2) or g.disabled or g.outage_s > 0.0
+                or g.freeze
                 or any(g.step_m) or a.freeze or any(a.step_rad) or b.freeze or b.step_m != 0.0
                 or m.freeze or any(m.step_gauss))  # fmt: skip
 

@@ -206,3 +206,62 @@ def test_a_filter_whose_fixes_keep_failing_their_gate_declares_itself_diverged()
                 assert st[ins.E_DIVERGED] == 0.0, t
         assert st[ins.E_DIVERGED] == (1.0 if jumping else 0.0)
         assert (st[ins.E_N_RESET] > 0) == jumping
+
+
+HOVER_5M = """
+[run]
+name = "hover-5m"
+airframe = "{configs}/xcell60.toml"
+gains = "{configs}/gains_paper.toml"
+duration_s = 24.0
+rate_hz = 100.0
+feedforward = "pseudo"
+plant_substeps = 1
+
+[trajectory]
+kind = "straight_line"
+start_nwu_m = [0.0, 0.0, 5.0]
+vel_nwu_m_s = [0.0, 0.0, 0.0]
+duration_s = 24.0
+
+[initial_state]
+pos_nwu_m = [0.0, 0.0, 5.0]
+"""
+
+
+def test_a_gps_outage_in_hover_grows_the_position_sigma_over_the_drift(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """gps-typical, a 5 m hover, no fix valid in [12, 22) s: the filter dead-reckons on an
+    ideal IMU. Its horizontal 1-sigma grows from 0.5 m to 0.8/1.5 m (north/west), the truth
+    stays inside 2 sigma on every tick, and the vehicle drifts 1.0 m (west): the error of
+    the gyro-bias estimate integrates into a roll error the controller flies as a lean."""
+    import dataclasses
+    from pathlib import Path
+
+    import heli_sitl as hs
+    from autopilot.estimation.log import EST_LOG_COLUMNS
+    from heli_common.world import World
+
+    configs = Path(__file__).resolve().parent.parent / "configs"
+    scenario = tmp_path / "hover.toml"
+    scenario.write_text(HOVER_5M.format(configs=configs))
+    base = World.load("gps-typical")
+    gps = dataclasses.replace(base.sensors.gps, outage_start_s=12.0, outage_s=10.0)
+    world = dataclasses.replace(base, sensors=dataclasses.replace(base.sensors, gps=gps))
+    f = hs.simulate(scenario=scenario, world=world)
+    r = f.record
+    assert r is not None and r.est_log is not None and r.x_hat is not None
+    t, e = r.t_s, r.est_log
+    i0 = EST_LOG_COLUMNS.index("sd_pos_n")
+    sd = e[:, i0 : i0 + 2]
+    out = (t >= 12.2) & (t < 22.0)  # the last fix (valid 11.8 s) arrives at 11.9 s
+    err = np.abs(r.x_hat[:, 0:2] - r.x[:, 0:2])
+    covered = float(np.mean(err[out] <= 2.0 * sd[out]))
+    k0, k1 = np.flatnonzero(out)[[0, -1]]
+    drift = float(np.linalg.norm(r.x[k1, 0:2] - r.x[k0, 0:2]))
+    since = e[:, EST_LOG_COLUMNS.index("since_fix_s")]
+    print(f"sigma {sd[k0].round(3)} -> {sd[k1].round(3)} m; truth inside 2 sigma "
+          f"{100 * covered:.1f} %; drift {drift:.3f} m; since fix {since[k1]:.2f} s")
+    assert since[k1] > 9.5  # no fix reached the filter in the window
+    assert np.all(sd[k1] > 1.5 * sd[k0]) and sd[k1].max() < 2.0
+    assert covered == 1.0
+    assert 0.5 < drift < 1.5

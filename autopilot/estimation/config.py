@@ -65,10 +65,10 @@ class InsConfig:
 @dataclass(frozen=True)
 class EstimatorConfig:
     # "ins": the inertial navigation filter (autopilot/estimation/ins.py) estimates attitude,
-    # velocity, position and the IMU biases; "ideal-ahrs" (the default until a GPS outage
-    # over processes flies well on the filter, docs/estimator.md): the attitude source's
-    # angles and per-axis position filters (autopilot/estimation/kf.py)
-    attitude: str = spec(default="ideal-ahrs", choices=ATTITUDE_SOURCES)
+    # velocity, position and the IMU biases (the default, as a real autopilot has);
+    # "ideal-ahrs": the attitude source's angles and per-axis position filters
+    # (autopilot/estimation/kf.py), kept for comparisons
+    attitude: str = spec(default="ins", choices=ATTITUDE_SOURCES)
     ins: InsConfig = spec(default=InsConfig())
 
     # --- process model (per earth axis: position, velocity, acceleration bias)

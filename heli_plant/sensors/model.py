@@ -64,7 +64,7 @@ Parameters (``params[SNP_*]``, float64, built by :func:`sensor_parameters`)::
     SNP_GPS_WANDER_H, SNP_GPS_WANDER_V       Gauss-Markov sigma [m]
     SNP_GPS_TAU_S                            Gauss-Markov time constant
     SNP_GPS_VEL_SIGMA                        white velocity std per fix [m/s]
-    SNP_GPS_DISABLED, SNP_GPS_FREEZE, SNP_GPS_FAULT_T, SNP_GPS_STEP (3)
+    SNP_GPS_DISABLED, SNP_GPS_OUTAGE_T0, SNP_GPS_OUTAGE_T1, SNP_GPS_FREEZE, SNP_GPS_FAULT_T, SNP_GPS_STEP (3)
     SNP_GPS_SATS, SNP_GPS_EPH_M, SNP_GPS_EPV_M   what the receiver reports with a fix
     SNP_GPS_QUEUE, SNP_GPS_QUEUE_CAP         state offset and slots of the GPS FIFO
     SNP_ATT_RATE_HZ, SNP_ATT_LAG_S, SNP_ATT_SIGMA (3), SNP_ATT_BIAS (3)
@@ -173,6 +173,7 @@ SENSOR_PARAMS = Layout(
     # GPS
     ("gps_rate_hz", 1), ("gps_lag_s", 1), ("gps_sigma_h", 1), ("gps_sigma_v", 1), ("gps_wander_h", 1),
     ("gps_wander_v", 1), ("gps_tau_s", 1), ("gps_vel_sigma", 1), ("gps_disabled", 1), ("gps_freeze", 1),
+    ("gps_outage_t0", 1), ("gps_outage_t1", 1),
     ("gps_fault_t", 1), ("gps_step", 3), ("gps_sats", 1), ("gps_eph_m", 1), ("gps_epv_m", 1),
     ("gps_queue", 1), ("gps_queue_cap", 1),
     # attitude source
@@ -208,6 +209,8 @@ SNP_GPS_WANDER_V = SENSOR_PARAMS.offset("gps_wander_v")
 SNP_GPS_TAU_S = SENSOR_PARAMS.offset("gps_tau_s")
 SNP_GPS_VEL_SIGMA = SENSOR_PARAMS.offset("gps_vel_sigma")
 SNP_GPS_DISABLED = SENSOR_PARAMS.offset("gps_disabled")
+SNP_GPS_OUTAGE_T0 = SENSOR_PARAMS.offset("gps_outage_t0")
+SNP_GPS_OUTAGE_T1 = SENSOR_PARAMS.offset("gps_outage_t1")
 SNP_GPS_FREEZE = SENSOR_PARAMS.offset("gps_freeze")
 SNP_GPS_FAULT_T = SENSOR_PARAMS.offset("gps_fault_t")
 SNP_GPS_STEP = SENSOR_PARAMS.offset("gps_step")
@@ -541,6 +544,8 @@ def _gps_deliver(t: float, p: FloatArray, s: FloatArray, out: FloatArray) -> boo
         return False
     base = q0 + slot * GPS_REC
     t_valid = s[base + GR_T]
+    if p[SNP_GPS_OUTAGE_T0] <= t_valid < p[SNP_GPS_OUTAGE_T1]:
+        return False
     out[OUT_GPS_T] = t_valid
     frozen = p[SNP_GPS_FREEZE] != 0.0 and t_valid >= p[SNP_GPS_FAULT_T] and s[SNS_GPS_OUT] > 0.0
     if not frozen:
@@ -752,6 +757,8 @@ def sensor_parameters(
         p[SNP_GPS_WANDER_V] = g.wander_v_m
         p[SNP_GPS_VEL_SIGMA] = g.vel_noise_m_s
     p[SNP_GPS_DISABLED] = 1.0 if g.disabled else 0.0
+    p[SNP_GPS_OUTAGE_T0] = g.outage_start_s
+    p[SNP_GPS_OUTAGE_T1] = g.outage_start_s + g.outage_s
     p[SNP_GPS_FREEZE] = 1.0 if g.freeze else 0.0
     p[SNP_GPS_FAULT_T] = g.fault_start_s
     p[SNP_GPS_STEP : SNP_GPS_STEP + 3] = g.step_m
