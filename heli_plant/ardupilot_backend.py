@@ -1,0 +1,137 @@
+"""The plant as ArduPilot's external physics (the JSON SITL backend, docs/ardupilot-json.md).
+
+ArduPilot's SITL (``--model JSON``) sends a servo frame and waits for the physics' answer;
+each NEW frame is one step of ``1 / frame_rate`` s. Here a frame's PWMs go through the
+swashplate (:class:`heli_common.swashplate.Swashplate`: SERVO1-3 the plate, SERVO4 the tail,
+channel 8 HeliRSC) to blade pitches, the plant steps with them held, and the answer is the
+truth after the step: body rates and specific force (FRD), position and velocity (NED about
+home) and the attitude quaternion. The firmware builds its own GPS, baro and compass from
+these.
+
+The rotor: ArduPilot's RSC output on channel 8 is read as the interlock. On the paper plant
+the rotor turns at its constant design speed whenever it is engaged (the paper's model has no
+rotor speed); with the interlock off the blades are held at zero pitch, so the rotor makes
+no thrust (``thrust_coeff`` is odd in the pitch). On Gavrilets' plant the governor holds its
+set speed from power-up and the interlock acts the same way (the run-up is not modelled).
+
+The clock is the firmware's: this loop only answers. A repeated frame is answered again by
+:class:`~heli_plant.ardupilot_link.ArduPilotJsonLink` without a step; a frame count that
+goes back (a new firmware process) restarts the plant from its initial state.
+"""
+
+from __future__ import annotations
+
+import csv
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO
+
+import numpy as np
+
+from heli_common.ardupilot_json import json_state_from_plant
+from heli_common.state import N_PITCH, PITCH_NAMES, STATE_NAMES, FloatArray
+from heli_common.swashplate import Swashplate, rsc_request
+from heli_plant.ardupilot_link import ArduPilotJsonLink
+from heli_plant.model import Plant
+from heli_plant.sensors.model import earth_accel_from_states, specific_force_flu
+
+RECORD_PERIOD_S = 0.01  # plant.csv: one row per 10 ms of physics time (the bench's 100 Hz)
+CHANNEL_RSC = 8
+
+
+@dataclass
+class BackendStats:
+    """What the backend did: frames stepped, servo readings refused or clipped, the
+    resets, the physics time reached, and the link's own counters at the end."""
+
+    frames: int = 0
+    refused_pwm: int = 0
+    saturated: int = 0
+    resets: int = 0
+    interlock_changes: int = 0
+    t_s: float = 0.0
+    link: dict[str, object] = field(default_factory=dict)
+
+
+class ArduPilotBackend:
+    """Answers ArduPilot's servo frames with the plant's state (one step per new frame).
+
+    ``make_plant`` builds the plant at its initial state (called again on a firmware reset);
+    ``record`` (optional) receives ``plant.csv`` rows: time, the 12 states, the held
+    pitches and the interlock."""
+
+    def __init__(
+        self,
+        make_plant: Callable[[], Plant],
+        swash: Swashplate,
+        link: ArduPilotJsonLink,
+        record: IO[str] | None = None,
+    ) -> None:
+        self._make_plant = make_plant
+        self.plant: Plant = make_plant()
+        self.swash = swash
+        self.link = link
+        self.stats = BackendStats()
+        self._interlock = False
+        self._writer = None if record is None else csv.writer(record)
+        if self._writer is not None:
+            self._writer.writerow(["t", *[n.split("_")[0] for n in STATE_NAMES], *PITCH_NAMES, "interlock"])
+        self._next_record_s = 0.0
+
+    def _reset(self) -> None:
+        self.plant = self._make_plant()
+        self._next_record_s = 0.0
+        self.stats.resets += 1
+
+    def pitches_for(self, pwm_us: tuple[int, ...]) -> FloatArray:
+        """The blade pitches a frame's PWMs set (zero while the rotor's interlock is off)."""
+        reading = self.swash.pitches_from_pwm(np.asarray(pwm_us[:4], dtype=float))
+        rsc = rsc_request(float(pwm_us[CHANNEL_RSC - 1]))
+        self.stats.refused_pwm += reading.refused + rsc.refused
+        self.stats.saturated += reading.saturated
+        if rsc.interlock != self._interlock:
+            self.stats.interlock_changes += 1
+            self._interlock = rsc.interlock
+        return reading.as_array() if rsc.interlock else np.zeros(N_PITCH)
+
+    def step(self, pwm_us: tuple[int, ...], dt_s: float) -> bytes:
+        """One frame: hold the pitches, step ``dt_s``, return the answer."""
+        p = self.plant
+        p.set_pitches(self.pitches_for(pwm_us))
+        x0 = p.x.copy()
+        x1 = p.step(dt_s)
+        accel = earth_accel_from_states(x0, x1, dt_s)
+        f = specific_force_flu(x1, np.array(accel), p.constants.gravity_m_s2)
+        self.stats.frames += 1
+        self.stats.t_s = p.t_s
+        if self._writer is not None and p.t_s >= self._next_record_s - 1e-9:
+            self._writer.writerow([f"{p.t_s:.6f}", *(f"{v:.6g}" for v in x1),
+                                   *(f"{v:.6g}" for v in p.u), int(self._interlock)])  # fmt: skip
+            self._next_record_s += RECORD_PERIOD_S
+        return json_state_from_plant(p.t_s, x1, f)
+
+    def run(
+        self, stop: threading.Event, duration_s: float | None = None, poll_s: float = 0.2
+    ) -> BackendStats:
+        """Answer frames until ``stop`` is set or the physics time reaches ``duration_s``."""
+        while not stop.is_set():
+            frame = self.link.poll(poll_s)
+            if frame is None:
+                continue
+            if self.link.last_frame_was_reset and self.stats.frames:
+                self._reset()
+            self.link.answer(self.step(frame.pwm_us, frame.dt_s))
+            if duration_s is not None and self.plant.t_s >= duration_s:
+                break
+        self.stats.link = dict(vars(self.link.counters))
+        self.stats.link["refused"] = dict(vars(self.link.counters.refused))
+        return self.stats
+
+
+def open_record(out_dir: Path | None) -> IO[str] | None:
+    if out_dir is None:
+        return None
+    out_dir.mkdir(parents=True, exist_ok=True)
+    return (out_dir / "plant.csv").open("w", newline="")
