@@ -74,6 +74,7 @@ class ArduPilotBackend:
         self.swash = swash
         self.link = link
         self.stats = BackendStats()
+        self.t_s = 0.0  # the physics time the firmware was last told
         self._interlock = False
         self._writer = None if record is None else csv.writer(record)
         if self._writer is not None:
@@ -82,6 +83,7 @@ class ArduPilotBackend:
 
     def _reset(self) -> None:
         self.plant = self._make_plant()
+        self.t_s = 0.0
         self._next_record_s = 0.0
         self.stats.resets += 1
 
@@ -105,12 +107,15 @@ class ArduPilotBackend:
         accel = earth_accel_from_states(x0, x1, dt_s)
         f = specific_force_flu(x1, np.array(accel), p.constants.gravity_m_s2)
         self.stats.frames += 1
-        self.stats.t_s = p.t_s
-        if self._writer is not None and p.t_s >= self._next_record_s - 1e-9:
-            self._writer.writerow([f"{p.t_s:.6f}", *(f"{v:.6g}" for v in x1),
+        # the firmware's clock is the sum of the frame periods; the plant keeps its own on the
+        # sim link's microsecond grid (1/1200 s is not on it: 0.04 % slow, for the world's timing)
+        self.t_s += dt_s
+        self.stats.t_s = self.t_s
+        if self._writer is not None and self.t_s >= self._next_record_s - 1e-9:
+            self._writer.writerow([f"{self.t_s:.6f}", *(f"{v:.6g}" for v in x1),
                                    *(f"{v:.6g}" for v in p.u), int(self._interlock)])  # fmt: skip
             self._next_record_s += RECORD_PERIOD_S
-        return json_state_from_plant(p.t_s, x1, f)
+        return json_state_from_plant(self.t_s, x1, f)
 
     def run(
         self, stop: threading.Event, duration_s: float | None = None, poll_s: float = 0.2
@@ -123,7 +128,7 @@ class ArduPilotBackend:
             if self.link.last_frame_was_reset and self.stats.frames:
                 self._reset()
             self.link.answer(self.step(frame.pwm_us, frame.dt_s))
-            if duration_s is not None and self.plant.t_s >= duration_s:
+            if duration_s is not None and self.t_s >= duration_s - 1e-9:
                 break
         self.stats.link = dict(vars(self.link.counters))
         self.stats.link["refused"] = dict(vars(self.link.counters.refused))

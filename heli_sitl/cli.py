@@ -228,10 +228,59 @@ def _compare(args: argparse.Namespace) -> int:
     return 0
 
 
+def _run_ardupilot_json(args: argparse.Namespace) -> int:
+    """``heli-sitl run --backend ardupilot-json``: the plant as ArduPilot SITL's external
+    physics (``--model JSON``), listening on UDP 9002 + 10 N (docs/ardupilot-json.md)."""
+    import signal
+    import threading
+
+    from heli_common.mavlink.udp import PortBusyError
+    from heli_common.plant_model import PlantModel
+    from heli_common.scenario_file import load_vehicle
+    from heli_common.swashplate import Swashplate
+    from heli_plant.ardupilot_backend import ArduPilotBackend, open_record
+    from heli_plant.ardupilot_link import ArduPilotJsonLink, port_for_instance
+    from heli_plant.model import Plant
+
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    airframe, x0, _ = load_vehicle(args.scenario, on_ground=not args.in_air)
+    world = World.load(args.world) if args.world else None
+    model = PlantModel.load(args.plant)
+    home = parse_geo_point(args.home, "--home")
+    swash = Swashplate.load(args.swashplate)
+    port = args.port if args.port is not None else port_for_instance(args.instance)
+    record = open_record(Path(args.out) if args.out else None)
+
+    def make_plant() -> Plant:
+        # the firmware's frame period (1200 Hz) is the sensors' sampling step, where a world has any
+        return Plant(airframe, x0, substeps=args.plant_substeps, world=world, step_s=1.0 / 1200.0, home=home,
+                     model=model)  # fmt: skip
+
+    try:
+        link = ArduPilotJsonLink(port)
+    except PortBusyError as exc:
+        print(f"heli-sitl: {exc.strerror}", file=sys.stderr)
+        return Exit.PORT_BUSY
+    with link:
+        try:
+            stats = ArduPilotBackend(make_plant, swash, link, record).run(stop, args.duration_s)
+        finally:
+            if record is not None:
+                record.close()
+    if args.verbose:
+        print(json.dumps(vars(stats), default=str), file=sys.stderr)
+    return 0
+
+
 def _run(args: argparse.Namespace) -> int:
     import logging
     import signal
     import threading
+
+    if args.backend == "ardupilot-json":
+        return _run_ardupilot_json(args)
 
     from heli_common.mavlink.udp import LOOPBACK, MavlinkUdp, PortBusyError
     from heli_common.plant_model import PlantModel
@@ -444,6 +493,14 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--plant", default="paper", metavar="paper|gavrilets|FILE", help=PLANT_HELP)
     r.add_argument("--home", default=f"{HOME.lat_deg},{HOME.lon_deg},{HOME.alt_amsl_m}",
                    help="lat,lon,alt the GPS reports about (give heli-autopilot the same --home)")
+    r.add_argument("--backend", choices=("mavlink", "ardupilot-json"), default="mavlink",
+                   help="mavlink: this bench's sim link to heli-autopilot; ardupilot-json: ArduPilot "
+                        "SITL's external physics (--model JSON), UDP 9002 + 10 N (docs/ardupilot-json.md)")
+    r.add_argument("--swashplate", default="swashplate/xcell60-h3-120.toml",
+                   help="ardupilot-json: the head between the servos and the blades (docs/swashplate.md)")
+    r.add_argument("--in-air", action="store_true",
+                   help="ardupilot-json: start at the scenario's initial state (default: on the ground)")
+    r.add_argument("--out", default=None, help="ardupilot-json: write plant.csv (the truth, 100 Hz) here")
     r.add_argument("-v", "--verbose", action="store_true")
     r.set_defaults(func=_run)
 
