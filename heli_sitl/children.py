@@ -43,6 +43,7 @@ class Child:
         cmd: list[str],
         log_path: Path | None = None,
         echo: IO[str] | None = None,
+        cwd: Path | None = None,
     ) -> None:
         self.name = name
         self.cmd = cmd
@@ -62,7 +63,7 @@ class Child:
             self._log.write(f"# {name}: {one_line}\n# its warnings and errors follow (none: a "
                             "clean run); -v on its command line logs more\n")  # fmt: skip
             self._log.flush()
-        self.proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, preexec_fn=die_with_parent)
+        self.proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, preexec_fn=die_with_parent, cwd=cwd)
         self._reader = threading.Thread(target=self._drain, name=f"drain-{name}", daemon=True)
         self._reader.start()
 
@@ -154,11 +155,13 @@ def describe_exit(returncode: int | None) -> str:
 
 
 def spawn(
-    cmd: list[str], name: str | None = None, log_path: Path | None = None, echo: bool = False
+    cmd: list[str], name: str | None = None, log_path: Path | None = None, echo: bool = False,
+    cwd: Path | None = None,
 ) -> Child:
-    """Start a child that dies with us and whose stderr is drained (echoed if ``echo``)."""
+    """Start a child that dies with us and whose stderr is drained (echoed if ``echo``), in
+    ``cwd`` (None: ours)."""
     return Child(name or Path(cmd[2] if len(cmd) > 2 else cmd[0]).name, cmd, log_path,
-                 sys.stderr if echo else None)  # fmt: skip
+                 sys.stderr if echo else None, cwd)  # fmt: skip
 
 
 def stop_all(children: list[Child]) -> None:

@@ -338,11 +338,32 @@ def _run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _up_ardupilot(args: argparse.Namespace) -> int:
+    from heli_sitl import ardupilot
+
+    try:
+        firmware = ardupilot.find_firmware(args.ardupilot_bin)
+    except ardupilot.FirmwareNotFoundError as exc:
+        raise UsageError(str(exc)) from exc
+    opts = ardupilot.ArduPilotOptions(
+        firmware=firmware, instance=args.instance, plant=args.plant, world=args.world, scenario=args.scenario,
+        home=args.home, speedup=args.speedup, out=Path(args.out or "out/ardupilot"),
+    )  # fmt: skip
+    try:
+        ardupilot.serve(opts)
+    except RuntimeError as exc:
+        print(f"heli-sitl up: {exc}", file=sys.stderr)
+        return Exit.FAILURE
+    return Exit.OK
+
+
 def _up(args: argparse.Namespace) -> int:
     from heli_common.process import terminate_on_sigterm
     from heli_sitl.demo import DemoError, UpOptions, serve
 
     terminate_on_sigterm()
+    if args.firmware == "ardupilot":
+        return _up_ardupilot(args)
     arg.resolve_instance(args, {"gcs_port": "gcs", "api_port": "api", "local_gcs_port": "local_gcs",
                                 "local_api_port": "local_api"})  # fmt: skip
     opts = UpOptions(
@@ -524,6 +545,14 @@ def build_parser() -> argparse.ArgumentParser:
     u.add_argument("--world", default=None, metavar="FILE|PRESET", help=WORLD_HELP)
     u.add_argument("--plant", default="paper", metavar="paper|gavrilets|FILE", help=PLANT_HELP)
     add_controller_args(u)
+    u.add_argument("--firmware", choices=("bench", "ardupilot"), default="bench",
+                   help="bench: this bench's autopilot (the TLC); ardupilot: ArduPilot's arducopter-heli "
+                        "SITL flies the plant (JSON backend; ground stations on TCP 5760 + 10 N)")
+    u.add_argument("--ardupilot-bin", default=None, metavar="PATH",
+                   help="the arducopter-heli SITL binary (default: $ARDUPILOT_HELI_BIN)")
+    u.add_argument("--speedup", type=arg.positive, default=1.0, help="ardupilot: SITL's --speedup")
+    u.add_argument("--home", default=f"{HOME.lat_deg},{HOME.lon_deg},{HOME.alt_amsl_m}",
+                   help="ardupilot: lat,lon,alt of home")
     u.set_defaults(func=_up)
 
     d = sub.add_parser("demo", help="plant + autopilot as processes, fly the scenario")

@@ -1,0 +1,130 @@
+"""A flight of ArduPilot's helicopter firmware on this bench's plant, run INSIDE a private
+network namespace (tests/test_ardupilot_sitl.py starts it with ``unshare --net``): ArduPilot
+SITL opens TCP 5760-5763 and UDP 9002, which must never reach the host's network.
+
+``python tests/ardupilot_flight.py OUT PLANT`` starts ``heli-sitl up --firmware ardupilot``,
+connects a ground station (pymavlink, TCP 5760), reads parameters, the mode and the EKF status,
+arms in GUIDED, runs the rotor up (RC8, the motor interlock), takes off to 5 m, hovers,
+lands, and writes what it saw to OUT/result.json; the plant's truth is OUT/plant.csv.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from pymavlink import mavutil
+
+TAKEOFF_M = 5.0
+SPEEDUP = 5
+GUIDED, LAND = 4, 9  # ArduCopter custom modes
+
+
+def truth_rows(out: Path) -> list[dict[str, float]]:
+    with (out / "plant.csv").open() as f:
+        return [{k: float(v) for k, v in r.items()} for r in csv.DictReader(f) if r["t"] != "t"]
+
+
+def main(out: Path, plant: str) -> int:
+    if os.readlink("/proc/self/ns/net") == os.environ.get("PARENT_NETNS"):
+        print("refusing: not inside a private network namespace", file=sys.stderr)
+        return 3
+    subprocess.run(["ip", "link", "set", "lo", "up"], check=True)
+    out.mkdir(parents=True, exist_ok=True)
+    res: dict[str, Any] = {"texts": [], "modes": []}
+    up = subprocess.Popen(
+        [sys.executable, "-m", "heli_sitl.cli", "up", "--firmware", "ardupilot", "--speedup", str(SPEEDUP),
+         "--plant", plant, "--out", str(out)],
+        stdout=(out / "up.log").open("w"), stderr=subprocess.STDOUT, start_new_session=True,
+    )  # fmt: skip
+    conn = None
+    try:
+        end = time.monotonic() + 30.0
+        while conn is None and time.monotonic() < end:
+            try:
+                conn = mavutil.mavlink_connection("tcp:127.0.0.1:5760", autoreconnect=False)
+            except OSError:
+                time.sleep(0.3)
+        if conn is None:
+            res["error"] = "no ground-station connection on TCP 5760"
+            return 0
+        hb = conn.wait_heartbeat(timeout=30)
+        res["heartbeat"] = [hb.type, hb.autopilot]
+        conn.mav.request_data_stream_send(1, 1, mavutil.mavlink.MAV_DATA_STREAM_ALL, 10, 1)
+
+        def pump(wall_s: float) -> None:
+            stop = time.monotonic() + wall_s
+            while time.monotonic() < stop:
+                m = conn.recv_match(blocking=True, timeout=0.1)
+                if m is None:
+                    continue
+                kind = m.get_type()
+                if kind == "STATUSTEXT":
+                    res["texts"].append(m.text)
+                elif kind == "EKF_STATUS_REPORT":
+                    res["ekf_flags"] = m.flags
+                elif kind == "HEARTBEAT" and m.get_srcComponent() == 1:
+                    res["armed"] = bool(m.base_mode & mavutil.mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+                    if not res["modes"] or res["modes"][-1] != m.custom_mode:
+                        res["modes"].append(m.custom_mode)
+                elif kind == "PARAM_VALUE":
+                    res.setdefault("params", {})[m.param_id] = m.param_value
+
+        def rc8(pwm: int) -> None:
+            conn.mav.rc_channels_override_send(1, 1, 0, 0, 0, 0, 0, 0, 0, pwm)
+
+        for name in ("H_SW_TYPE", "H_COL_MAX", "FRAME_CLASS"):
+            conn.mav.param_request_read_send(1, 1, name.encode(), -1)
+        pump(12.0 / SPEEDUP * 2)  # the EKF aligns and takes the GPS (about 12 s of sim time)
+        res["ekf_flags_before_arming"] = res.get("ekf_flags")
+        conn.mav.set_mode_send(1, mavutil.mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, GUIDED)
+        pump(0.5)
+        for _ in range(40):  # arming waits for the EKF: retry
+            rc8(1000)  # the interlock must be low to arm
+            conn.mav.command_long_send(1, 1, mavutil.mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, *[0] * 6)
+            pump(0.5)
+            if res.get("armed"):
+                break
+        if not res.get("armed"):
+            res["error"] = "did not arm"
+            return 0
+        for _ in range(int(15 / SPEEDUP / 0.5) + 1):  # rotor run-up (H_RSC_RUNUP_TIME)
+            rc8(2000)
+            pump(0.5)
+        t_takeoff = truth_rows(out)[-1]["t"]
+        conn.mav.command_long_send(1, 1, mavutil.mavlink.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, 0, TAKEOFF_M)
+        for _ in range(int(40 / SPEEDUP / 0.5)):  # climb and hover: 40 s of sim time
+            rc8(2000)
+            pump(0.5)
+        t_hover_end = truth_rows(out)[-1]["t"]
+        conn.mav.set_mode_send(1, mavutil.mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, LAND)
+        for _ in range(int(40 / SPEEDUP / 0.5)):  # until it lands and disarms
+            rc8(2000)
+            pump(0.5)
+            if not res.get("armed"):
+                break
+        res["t_takeoff"], res["t_hover_end"] = t_takeoff, t_hover_end
+        res["disarmed_after_landing"] = not res.get("armed")
+    finally:
+        if conn is not None:
+            conn.close()
+        os.killpg(up.pid, signal.SIGINT)  # up, the plant and the firmware: one process group
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            up.wait(20)
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(up.pid, signal.SIGKILL)  # the firmware ignores SIGTERM while it waits
+        up.wait(10)
+        (out / "result.json").write_text(json.dumps(res, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(Path(sys.argv[1]), sys.argv[2] if len(sys.argv) > 2 else "paper"))
