@@ -24,9 +24,7 @@ here raises on what arrives. Loopback only: the socket is bound to 127.0.0.1.
 
 from __future__ import annotations
 
-import errno
 import select
-import socket
 from dataclasses import dataclass, field
 
 from heli_common.ardupilot_json import (
@@ -37,7 +35,7 @@ from heli_common.ardupilot_json import (
     parse_servo_packet,
 )
 from heli_common.closing import Closing
-from heli_common.mavlink.udp import LOOPBACK, Address, PortBusyError
+from heli_common.mavlink.udp import LOOPBACK, Address, bind_udp
 
 __all__ = ["BASE_PORT", "ArduPilotJsonLink", "LinkCounters", "RefusedCounts", "port_for_instance"]
 
@@ -106,15 +104,7 @@ class ArduPilotJsonLink(Closing):
         self._seen: ServoFrame | None = None
         self._answer: bytes | None = None  # the answer to ``_answered_count``
         self._answered_count: int | None = None
-        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        try:
-            self.sock.bind((LOOPBACK, port))
-        except OSError as exc:
-            self.sock.close()
-            if exc.errno == errno.EADDRINUSE:
-                raise PortBusyError(exc.errno, f"UDP {LOOPBACK}:{port} is busy") from exc
-            raise
-        self.sock.setblocking(False)
+        self.sock = bind_udp((LOOPBACK, port))
         self.local: Address = self.sock.getsockname()
 
     @property

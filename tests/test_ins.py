@@ -208,27 +208,6 @@ def test_a_filter_whose_fixes_keep_failing_their_gate_declares_itself_diverged()
         assert (st[ins.E_N_RESET] > 0) == jumping
 
 
-HOVER_5M = """
-[run]
-name = "hover-5m"
-airframe = "{configs}/xcell60.toml"
-gains = "{configs}/gains_paper.toml"
-duration_s = 24.0
-rate_hz = 100.0
-feedforward = "pseudo"
-plant_substeps = 1
-
-[trajectory]
-kind = "straight_line"
-start_nwu_m = [0.0, 0.0, 5.0]
-vel_nwu_m_s = [0.0, 0.0, 0.0]
-duration_s = 24.0
-
-[initial_state]
-pos_nwu_m = [0.0, 0.0, 5.0]
-"""
-
-
 def test_a_gps_outage_in_hover_grows_the_position_sigma_over_the_drift(tmp_path) -> None:  # type: ignore[no-untyped-def]
     """gps-typical, a 5 m hover, no fix valid in [12, 22) s: the filter dead-reckons on an
     ideal IMU. Its horizontal 1-sigma grows from 0.5 m to 0.8/1.5 m (north/west), the truth
@@ -237,13 +216,17 @@ def test_a_gps_outage_in_hover_grows_the_position_sigma_over_the_drift(tmp_path)
     import dataclasses
     from pathlib import Path
 
+    from test_world_processes import HOVER_SCENARIO
+
     import heli_sitl as hs
     from autopilot.estimation.log import EST_LOG_COLUMNS
     from heli_common.world import World
 
     configs = Path(__file__).resolve().parent.parent / "configs"
     scenario = tmp_path / "hover.toml"
-    scenario.write_text(HOVER_5M.format(configs=configs))
+    text = HOVER_SCENARIO.replace("14.0", "24.0").replace("10.0]", "5.0]")  # 24 s at 5 m
+    scenario.write_text(text.replace('"xcell60.toml"', f'"{configs / "xcell60.toml"}"')
+                        .replace('"gains_paper.toml"', f'"{configs / "gains_paper.toml"}"'))  # fmt: skip
     base = World.load("gps-typical")
     gps = dataclasses.replace(base.sensors.gps, outage_start_s=12.0, outage_s=10.0)
     world = dataclasses.replace(base, sensors=dataclasses.replace(base.sensors, gps=gps))

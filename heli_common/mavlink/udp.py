@@ -84,6 +84,23 @@ def is_loopback(host: str) -> bool:
     return all(ipaddress.ip_address(i[4][0]).is_loopback for i in infos)
 
 
+def bind_udp(local: Address, rcvbuf_bytes: int | None = None) -> socket.socket:
+    """A non-blocking UDP socket bound to ``local``; :class:`PortBusyError` if the port is
+    taken (the socket closed), any other OSError as it is."""
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    if rcvbuf_bytes is not None:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, rcvbuf_bytes)
+    try:
+        sock.bind(local)
+    except OSError as exc:
+        sock.close()
+        if exc.errno == errno.EADDRINUSE:
+            raise PortBusyError(exc.errno, f"UDP {local[0]}:{local[1]} is busy") from exc
+        raise
+    sock.setblocking(False)
+    return sock
+
+
 class MavlinkUdp(Closing):
     """One UDP socket speaking MAVLink 2.
 
@@ -115,16 +132,7 @@ class MavlinkUdp(Closing):
         self.stats = LinkStats()
         self.mav = MAVLink(None, srcSystem=system_id, srcComponent=component_id)
         self.mav.robust_parsing = True
-        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, rcvbuf_bytes)
-        try:
-            self.sock.bind(local)
-        except OSError as exc:
-            self.sock.close()
-            if exc.errno == errno.EADDRINUSE:
-                raise PortBusyError(exc.errno, f"UDP {local[0]}:{local[1]} is busy") from exc
-            raise
-        self.sock.setblocking(False)
+        self.sock = bind_udp(local, rcvbuf_bytes)
         self.local = self.sock.getsockname()
 
     # -- context manager -------------------------------------------------------------
