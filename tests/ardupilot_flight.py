@@ -11,7 +11,6 @@ lands, and writes what it saw to OUT/result.json; the plant's truth is OUT/plant
 from __future__ import annotations
 
 import contextlib
-import csv
 import json
 import os
 import signal
@@ -28,9 +27,20 @@ SPEEDUP = 5
 GUIDED, LAND = 4, 9  # ArduCopter custom modes
 
 
-def truth_rows(out: Path) -> list[dict[str, float]]:
-    with (out / "plant.csv").open() as f:
-        return [{k: float(v) for k, v in r.items()} for r in csv.DictReader(f) if r["t"] != "t"]
+def sim_time(out: Path) -> float:
+    """The plant's physics time: the last complete row of plant.csv (0 before the first)."""
+    try:
+        with (out / "plant.csv").open("rb") as f:
+            f.seek(0, os.SEEK_END)
+            f.seek(max(0, f.tell() - 4096))
+            lines = f.read().split(b"\n")
+    except OSError:
+        return 0.0
+    for line in reversed(lines[:-1]):  # the last one may be half written
+        head = line.split(b",", 1)[0]
+        if head and head != b"t":
+            return float(head)
+    return 0.0
 
 
 def main(out: Path, plant: str) -> int:
@@ -78,12 +88,22 @@ def main(out: Path, plant: str) -> int:
                 elif kind == "PARAM_VALUE":
                     res.setdefault("params", {})[m.param_id] = m.param_value
 
+        def wait_sim(seconds: float, rc8_pwm: int | None = None, wall_limit_s: float = 60.0) -> None:
+            """Pump until the physics has advanced ``seconds`` (the firmware may run slower
+            than its speed-up on a loaded machine), holding RC8 at ``rc8_pwm``."""
+            t_end = sim_time(out) + seconds
+            give_up = time.monotonic() + wall_limit_s
+            while sim_time(out) < t_end and time.monotonic() < give_up:
+                if rc8_pwm is not None:
+                    rc8(rc8_pwm)
+                pump(0.25)
+
         def rc8(pwm: int) -> None:
             conn.mav.rc_channels_override_send(1, 1, 0, 0, 0, 0, 0, 0, 0, pwm)
 
         for name in ("H_SW_TYPE", "H_COL_MAX", "FRAME_CLASS"):
             conn.mav.param_request_read_send(1, 1, name.encode(), -1)
-        pump(12.0 / SPEEDUP * 2)  # the EKF aligns and takes the GPS (about 12 s of sim time)
+        wait_sim(20.0)  # the EKF aligns and takes the GPS
         res["ekf_flags_before_arming"] = res.get("ekf_flags")
         conn.mav.set_mode_send(1, mavutil.mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, GUIDED)
         pump(0.5)
@@ -96,21 +116,16 @@ def main(out: Path, plant: str) -> int:
         if not res.get("armed"):
             res["error"] = "did not arm"
             return 0
-        for _ in range(int(15 / SPEEDUP / 0.5) + 1):  # rotor run-up (H_RSC_RUNUP_TIME)
-            rc8(2000)
-            pump(0.5)
-        t_takeoff = truth_rows(out)[-1]["t"]
+        wait_sim(15.0, 2000)  # rotor run-up (H_RSC_RUNUP_TIME)
+        t_takeoff = sim_time(out)
         conn.mav.command_long_send(1, 1, mavutil.mavlink.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, 0, TAKEOFF_M)
-        for _ in range(int(40 / SPEEDUP / 0.5)):  # climb and hover: 40 s of sim time
-            rc8(2000)
-            pump(0.5)
-        t_hover_end = truth_rows(out)[-1]["t"]
+        wait_sim(40.0, 2000)  # climb and hover
+        t_hover_end = sim_time(out)
         conn.mav.set_mode_send(1, mavutil.mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, LAND)
-        for _ in range(int(40 / SPEEDUP / 0.5)):  # until it lands and disarms
+        t_land_end, give_up = sim_time(out) + 40.0, time.monotonic() + 60.0
+        while sim_time(out) < t_land_end and time.monotonic() < give_up and res.get("armed"):  # disarms
             rc8(2000)
             pump(0.5)
-            if not res.get("armed"):
-                break
         res["t_takeoff"], res["t_hover_end"] = t_takeoff, t_hover_end
         res["disarmed_after_landing"] = not res.get("armed")
     finally:
