@@ -43,8 +43,8 @@ CHANNEL_RSC = 8
 
 @dataclass
 class BackendStats:
-    """What the backend did: frames stepped, servo readings refused or clipped, the
-    resets, the physics time reached, and the link's own counters at the end."""
+    """What the backend did: frames stepped, servo readings refused or clipped (with the
+    rotor engaged), the resets, the physics time reached, and the link's own counters at the end."""
 
     frames: int = 0
     refused_pwm: int = 0
@@ -92,7 +92,8 @@ class ArduPilotBackend:
         reading = self.swash.pitches_from_pwm(np.asarray(pwm_us[:4], dtype=float))
         rsc = rsc_request(float(pwm_us[CHANNEL_RSC - 1]))
         self.stats.refused_pwm += reading.refused + rsc.refused
-        self.stats.saturated += reading.saturated
+        if rsc.interlock:  # disarmed, the firmware parks the collective 1 us below the head's stop
+            self.stats.saturated += reading.saturated
         if rsc.interlock != self._interlock:
             self.stats.interlock_changes += 1
             self._interlock = rsc.interlock

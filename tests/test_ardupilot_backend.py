@@ -142,3 +142,12 @@ def test_the_interlock_holds_the_blades_at_zero_pitch() -> None:
         np.testing.assert_allclose(be.pitches_for(tuple(pwm)), swash.pitches_from_pwm(pwm[:4]).as_array())
         assert be.pitches_for(tuple(pwm))[0] == pytest.approx(0.10)  # mid collective: the hover trim
         assert be.stats.interlock_changes == 1
+        # clipped at the head's stops: counted only with the rotor engaged (disarmed, the
+        # firmware parks the collective at 1249 us, below the 1250 us stop)
+        low = [1249] * 3 + [1500] * 13
+        low[7] = RSC_OFF
+        be.pitches_for(tuple(low))
+        assert be.stats.saturated == 0
+        low[7] = RSC_ON
+        be.pitches_for(tuple(low))
+        assert be.stats.saturated >= 1
