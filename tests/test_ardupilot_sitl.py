@@ -72,5 +72,5 @@ def test_ardupilot_flies_the_paper_plant_and_the_rotor_plant(tmp_path: Path) -> 
         err = np.linalg.norm(pos[hover] - target, axis=1)
         rms = float(np.sqrt(np.mean(err**2)))
         print(f"{plant}: hover over 20 s: RMS {rms:.3f} m, max {err.max():.3f} m")
-        assert err.max() < 0.15 and rms < 0.1
+        assert err.max() < 0.09 and rms < 0.055  # twice the worst measured (0.046, 0.029 m)
         assert res["disarmed_after_landing"] and pos[-1, 2] < 0.05  # landed, disarmed
