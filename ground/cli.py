@@ -25,7 +25,7 @@ from ground.client import (
     GroundError,
     MissionProgress,
 )
-from ground.files import FileFormatError, MissionFile, load_mission
+from ground.files import FileFormatError, MissionFile, load_mission, load_trajectory
 from ground.log import TlogError, tlog_columns, write_csv
 from heli_common import cli_args as arg
 from heli_common.defaults import ports
@@ -71,6 +71,18 @@ def build_parser() -> argparse.ArgumentParser:
     fly.add_argument("--timeout-s", type=arg.positive, default=None,
                      help="give up following after this long (default: the mission's length + 120 s)")
     fly.add_argument("--quiet", action="store_true", help="no progress bar")
+    fly.add_argument("--guided", action="store_true",
+                     help="stream the trajectory (.toml/.csv) as SET_POSITION_TARGET_LOCAL_NED instead of "
+                          "uploading it: ArduPilot in GUIDED, this bench's vehicle in OFFBOARD")
+    fly.add_argument("--rate-hz", type=arg.positive, default=20.0,
+                     help="--guided: setpoints per second of the vehicle's clock")
+    fly.add_argument("--lift-m", type=float, default=None,
+                     help="--guided: fly every setpoint this much higher (default: the lowest point "
+                          "3 m above home)")
+    fly.add_argument("--window-s", type=float, nargs=2, default=None, metavar=("FROM", "TO"),
+                     help="--guided: the tracking window in trajectory time (default: [45, end], or all)")
+    fly.add_argument("--track-csv", type=Path, default=None,
+                     help="--guided: write the streamed target and the vehicle's estimate to this CSV")
     fly.set_defaults(func=_fly)
 
     lg = sub.add_parser("log", parents=[common], help="record everything received to a .tlog")
@@ -170,6 +182,8 @@ def _upload(args: argparse.Namespace) -> int:
 
 
 def _fly(args: argparse.Namespace) -> int:
+    if args.guided:
+        return _fly_guided(args)
     mf = _load(args)
     tlog = TlogWriter(args.tlog) if args.tlog else None
     try:
@@ -211,6 +225,26 @@ def _fly(args: argparse.Namespace) -> int:
             t1 = gc.vehicle_time_s()
             took = f" ({t1 - t0:.1f} s of vehicle time after the start)" if t0 is not None and t1 else ""
             print(f"landed and disarmed{took}")
+    finally:
+        if tlog is not None:
+            tlog.close()
+    return 0
+
+
+def _fly_guided(args: argparse.Namespace) -> int:
+    from ground.guided import GuidedFlight, GuidedOptions
+
+    traj = load_trajectory(args.file)
+    window = None if args.window_s is None else (float(args.window_s[0]), float(args.window_s[1]))
+    if window is not None and not (0.0 <= window[0] < window[1]):
+        raise UsageError(f"--window-s {window[0]:g} {window[1]:g}: expected 0 <= FROM < TO")
+    opts = GuidedOptions(rate_hz=args.rate_hz, lift_m=args.lift_m, window_s=window)
+    tlog = TlogWriter(args.tlog) if args.tlog else None
+    try:
+        with _client(args, tlog) as gc:
+            gc.connect(args.connect_timeout_s)
+            GuidedFlight(gc, traj, opts, track_csv=args.track_csv,
+                         say=lambda line: print(line, flush=True)).run()  # fmt: skip
     finally:
         if tlog is not None:
             tlog.close()

@@ -52,8 +52,10 @@ import numpy.typing as npt
 
 from autopilot import trajectory_codec as codec
 from autopilot.trajectory.analytic import PaperSpiralCircle
+from autopilot.trajectory.base import Trajectory
 from autopilot.trajectory.factory import trajectory_from_table
 from autopilot.trajectory.manoeuvres import ArcTurn
+from autopilot.trajectory.sampled import SampledTrajectory
 from heli_common.config import ConfigError
 from heli_common.geo import GeoPoint
 from heli_common.mavlink import mission_items as ms
@@ -397,9 +399,26 @@ def write_plan(path: Path | str, items: Sequence[MissionItem], home: GeoPoint) -
 # ----------------------------------------------------------------------------- trajectory TOML
 
 
-def read_trajectory_toml(path: Path | str, dt_s: float | None = None) -> MissionFile:
-    """``[trajectory]`` (+ optional ``[encoding]``) -> the timed-trajectory items."""
+def load_trajectory(path: Path | str) -> Trajectory:
+    """A timed trajectory file (.toml or .csv) as the trajectory itself, for a ground station
+    that streams it (``heli-ground fly --guided``); CSV samples become the C2 cubic splines the
+    vehicle would build from them."""
     p = Path(path)
+    suffix = p.suffix.lower()
+    if suffix == ".toml":
+        return _toml_trajectory(p)[2]
+    if suffix == ".csv":
+        s = read_trajectory_csv(p)
+        try:
+            return SampledTrajectory(s.t_s, s.pos_nwu_m, s.yaw_nwu_rad)
+        except ValueError as exc:
+            raise FileFormatError(p, None, f"trajectory: {exc}") from exc
+    raise FileFormatError(p, None, "a streamed trajectory is a .toml or .csv file (a mission is uploaded "
+                                   "with heli-ground fly, without --guided)")
+
+
+def _toml_trajectory(p: Path) -> tuple[str, dict[str, Any], Trajectory]:
+    """(text, document, trajectory) of a TOML file with a ``[trajectory]`` table."""
     text = _read_text(p)
     try:
         doc = tomllib.loads(text)
@@ -415,6 +434,13 @@ def read_trajectory_toml(path: Path | str, dt_s: float | None = None) -> Mission
         key = re.search(r"trajectory[.:]\s*(\w+)", str(exc))
         line = _toml_line(text, "trajectory", key.group(1) if key else "kind")
         raise FileFormatError(p, line, str(exc).removeprefix(f"{p}: ")) from exc
+    return text, doc, traj
+
+
+def read_trajectory_toml(path: Path | str, dt_s: float | None = None) -> MissionFile:
+    """``[trajectory]`` (+ optional ``[encoding]``) -> the timed-trajectory items."""
+    p = Path(path)
+    text, doc, traj = _toml_trajectory(p)
     enc = doc.get("encoding", {})
     if not isinstance(enc, dict):
         raise FileFormatError(p, _toml_line(text, "encoding", None), "[encoding] must be a table")

@@ -18,7 +18,6 @@ Frames: the wire is earth NED / body FRD; the bench's plant state is earth NWU /
 from __future__ import annotations
 
 import enum
-import json
 import math
 import struct
 from collections.abc import Sequence
@@ -140,15 +139,19 @@ def _finite(name: str, values: _VecIn, n: int) -> list[float]:
     return out
 
 
-def _as_float32(values: list[float]) -> list[float]:
-    """Round to float32 here, where the rounding is IEEE round-to-nearest-even, and write
-    the result's exact double repr: the firmware's ``sscanf("%f")`` (strtof) then stores
-    exactly this float32, with no second rounding of its own."""
-    with np.errstate(over="ignore"):  # an overflow becomes inf, refused just below
-        f32: list[float] = np.asarray(values, dtype=np.float32).astype(np.float64).tolist()
-    if not all(math.isfinite(v) for v in f32):
-        raise ValueError(f"{values} overflows a float32 (the firmware's Vector3f)")
-    return f32
+# The answer's fields in the order written: (name, components); gyro, accel_body, velocity
+# and quaternion are float32 on the firmware's side, timestamp and position double
+_FIELDS = (("timestamp", 1), ("gyro", 3), ("accel_body", 3), ("position", 3), ("velocity", 3),
+           ("quaternion", 4))  # fmt: skip
+_N_VALUES = sum(n for _, n in _FIELDS)
+_QUAT = _N_VALUES - 4
+_F32X6, _F32X7 = struct.Struct("<6f"), struct.Struct("<7f")
+# compact JSON (no space anywhere: parse_sensors steps over `"key":` and expects `[`), the
+# numbers as Python's shortest round-trip repr, which is what json.dumps writes for a float
+_TEMPLATE = (
+    '\n{{"timestamp":{},"imu":{{"gyro":[{},{},{}],"accel_body":[{},{},{}]}},"position":[{},{},{}],'
+    '"velocity":[{},{},{}],"quaternion":[{},{},{},{}]}}\n'
+)
 
 
 def state_json(
@@ -170,31 +173,43 @@ def state_json(
     * ``quaternion`` [w, x, y, z], body FRD -> earth NED (ArduPilot's ``q1..q4``): float32;
       normalised here, refused if its norm is further than :data:`QUAT_NORM_TOL` from 1.
 
+    The float32 fields are rounded here, where the rounding is IEEE round-to-nearest-even,
+    and written as the result's exact double repr: the firmware's ``sscanf("%f")`` (strtof)
+    then stores exactly this float32, with no second rounding of its own.
+
     Never ``attitude`` (the quaternion wins anyway), never ``no_time_sync`` (it takes the
     firmware off lockstep timing). Raises ValueError on a non-finite value: NaN never
     reaches the firmware, whose ``sscanf`` would read ``NaN`` as a number.
     """
-    t = _finite("timestamp", [timestamp_s], 1)
-    if t[0] < 0.0:
-        raise ValueError(f"timestamp {t[0]} s is negative")
-    q = _finite("quaternion", quat_wxyz, 4)
+    parts = (gyro_frd_rad_s, accel_frd_m_s2, pos_ned_m, vel_ned_m_s, quat_wxyz)
+    try:  # plain floats: this runs once per frame (1200 Hz), where numpy's set-up costs more
+        v = [float(timestamp_s)]
+        for a in parts:
+            v += a.tolist() if isinstance(a, np.ndarray) else [float(c) for c in a]
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"state answer: not numbers: {exc}") from None
+    if len(v) != _N_VALUES or not all(map(math.isfinite, v)):
+        _explain(timestamp_s, *parts)
+    if v[0] < 0.0:
+        raise ValueError(f"timestamp {v[0]} s is negative")
+    q = v[_QUAT:]
     norm = math.sqrt(sum(c * c for c in q))
     if abs(norm - 1.0) > QUAT_NORM_TOL:
         raise ValueError(f"quaternion {q} has norm {norm}, not 1")
-    doc = {
-        "timestamp": t[0],
-        "imu": {
-            "gyro": _as_float32(_finite("gyro", gyro_frd_rad_s, 3)),
-            "accel_body": _as_float32(_finite("accel_body", accel_frd_m_s2, 3)),
-        },
-        "position": _finite("position", pos_ned_m, 3),
-        "velocity": _as_float32(_finite("velocity", vel_ned_m_s, 3)),
-        "quaternion": _as_float32([c / norm for c in q]),
-    }
-    # separators: no space anywhere (parse_sensors steps over `"key":` and expects `[`);
-    # allow_nan=False: a second guard, everything was checked finite above
-    text = json.dumps(doc, separators=(",", ":"), allow_nan=False)
-    return b"\n" + text.encode("ascii") + b"\n"
+    v[_QUAT:] = [c / norm for c in q]
+    try:  # (struct's "f" rounds to nearest-even, as numpy's float32 does)
+        gyro_acc = _F32X6.unpack(_F32X6.pack(*v[1:7]))
+        vel_q = _F32X7.unpack(_F32X7.pack(*v[10:]))
+    except OverflowError:
+        raise ValueError(f"{v} overflows a float32 (the firmware's Vector3f)") from None
+    return _TEMPLATE.format(*map(repr, (v[0], *gyro_acc, *v[7:10], *vel_q))).encode("ascii")
+
+
+def _explain(*fields: object) -> None:
+    """Raise the ValueError naming the field that is the wrong size or not finite."""
+    for (name, n), values in zip(_FIELDS, fields, strict=True):
+        _finite(name, np.asarray(values, dtype=np.float64).reshape(-1), n)
+    raise ValueError("state answer: wrong number of values")  # (unreachable: one field is wrong)
 
 
 def json_state_from_plant(t_s: float, x: npt.ArrayLike, accel_flu_m_s2: _VecIn) -> bytes:

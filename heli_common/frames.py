@@ -32,6 +32,13 @@ nwu_to_ned = flip
 ned_to_nwu = flip
 flu_to_frd = flip
 frd_to_flu = flip
+_T_DIAG = np.array([1.0, -1.0, -1.0])
+
+
+def flip_rows(a: FloatArray) -> FloatArray:
+    """T applied to each row of an (n, 3) array (NWU <-> NED, FLU <-> FRD)."""
+    out: FloatArray = np.asarray(a, dtype=float) * _T_DIAG
+    return out
 
 
 def euler_flu_to_frd(euler_rad: VecIn) -> Vec3:

@@ -80,6 +80,8 @@ class ArduPilotBackend:
         if self._writer is not None:
             self._writer.writerow(["t", *[n.split("_")[0] for n in STATE_NAMES], *PITCH_NAMES, "interlock"])
         self._next_record_s = 0.0
+        self._last_key: tuple[int, ...] = ()
+        self._last: tuple[FloatArray, int, int, bool] = (np.zeros(N_PITCH), 0, 0, False)
 
     def _reset(self) -> None:
         self.plant = self._make_plant()
@@ -89,15 +91,22 @@ class ArduPilotBackend:
 
     def pitches_for(self, pwm_us: tuple[int, ...]) -> FloatArray:
         """The blade pitches a frame's PWMs set (zero while the rotor's interlock is off)."""
-        reading = self.swash.pitches_from_pwm(np.asarray(pwm_us[:4], dtype=float))
-        rsc = rsc_request(float(pwm_us[CHANNEL_RSC - 1]))
-        self.stats.refused_pwm += reading.refused + rsc.refused
-        if rsc.interlock:  # disarmed, the firmware parks the collective 1 us below the head's stop
-            self.stats.saturated += reading.saturated
-        if rsc.interlock != self._interlock:
+        key = (*pwm_us[:4], pwm_us[CHANNEL_RSC - 1])
+        if key != self._last_key:  # the firmware's outputs change at its 400 Hz loop, frames
+            # come at 1200 Hz: two frames in three repeat the last PWMs
+            reading = self.swash.pitches_from_pwm(np.asarray(pwm_us[:4], dtype=float))
+            rsc = rsc_request(float(pwm_us[CHANNEL_RSC - 1]))
+            pitches = reading.as_array() if rsc.interlock else np.zeros(N_PITCH)
+            self._last_key, self._last = key, (pitches, reading.refused + rsc.refused, reading.saturated,
+                                               rsc.interlock)  # fmt: skip
+        pitches, refused, saturated, interlock = self._last
+        self.stats.refused_pwm += refused
+        if interlock:  # disarmed, the firmware parks the collective 1 us below the head's stop
+            self.stats.saturated += saturated
+        if interlock != self._interlock:
             self.stats.interlock_changes += 1
-            self._interlock = rsc.interlock
-        return reading.as_array() if rsc.interlock else np.zeros(N_PITCH)
+            self._interlock = interlock
+        return pitches
 
     def step(self, pwm_us: tuple[int, ...], dt_s: float) -> bytes:
         """One frame: hold the pitches, step ``dt_s``, return the answer."""

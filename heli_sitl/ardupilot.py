@@ -5,9 +5,10 @@ ardupilot-json``, UDP 9002 + 10 N) and ArduPilot's SITL (``arducopter-heli --mod
 started with ArduPilot's own helicopter defaults, the X-Cell head
 (``configs/swashplate/xcell60-h3-120.parm``) and the X-Cell's tuning
 (``configs/ardupilot/xcell60.parm``). Ground stations connect where ArduPilot users expect:
-TCP 5760 + 10 N (SERIAL0), 5762 and 5763 (SERIAL1-2), e.g. ``mavproxy.py --master
-tcp:127.0.0.1:5760``. The firmware writes its eeprom and logs into ``--out`` (default: a
-directory of its own under out/ardupilot).
+TCP 5760 + 10 N (SERIAL0), e.g. ``mavproxy.py --master tcp:127.0.0.1:5760``; and SERIAL1
+sends to the bench's ground-station UDP port (14550 for instance 0, as ``heli-ground`` and
+QGroundControl expect: ``heli-ground fly --guided``). The firmware writes its eeprom and logs
+into ``--out`` (default: a directory of its own under out/ardupilot).
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from heli_common.config import CONFIG_DIR
-from heli_common.defaults import HOME
+from heli_common.defaults import HOME, ports
 from heli_sitl.children import Child, spawn, stop_all
 
 ENV_BIN = "ARDUPILOT_HELI_BIN"  # where the firmware is, if not given on the command line
@@ -81,7 +82,10 @@ def commands(opts: ArduPilotOptions) -> list[tuple[str, list[str], Path | None]]
     firmware = [str(opts.firmware), "--model", "JSON", "--speedup", f"{opts.speedup:g}", "--defaults", parms,
                 "-I", str(opts.instance), "--home", f"{opts.home},{opts.heading_deg:g}",
                 # SERIAL0 without :wait, so the physics runs before a ground station connects
-                "--serial0", "tcp:0"]  # fmt: skip
+                "--serial0", "tcp:0",
+                # SERIAL1 to the bench's ground-station port, where heli-ground and
+                # QGroundControl listen (what MAVProxy's --out 14550 gives sim_vehicle.py users)
+                "--serial1", f"udpclient:127.0.0.1:{ports(opts.instance).gcs}"]  # fmt: skip
     if opts.wipe:
         firmware.insert(1, "-w")
     fw_dir = opts.out / "firmware"
