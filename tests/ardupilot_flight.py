@@ -3,7 +3,8 @@ network namespace (tests/test_ardupilot_sitl.py starts it with ``unshare --net``
 SITL opens TCP 5760-5763 and UDP 9002, which must never reach the host's network.
 
 ``python tests/ardupilot_flight.py OUT PLANT`` starts ``heli-sitl up --firmware ardupilot``,
-connects a ground station (pymavlink, TCP 5760), reads parameters, the mode and the EKF status,
+connects a ground station (pymavlink, TCP 5760), reads parameters, the mode and the EKF status
+(and so does MAVProxy on TCP 5763 while it flies),
 arms in GUIDED, runs the rotor up (the motor interlock, switched with MAV_CMD_DO_AUX_FUNCTION),
 takes off to 5 m and hovers; then ``heli-ground fly --guided`` (UDP 14550, the firmware's
 SERIAL1) flies the paper's trajectory in GUIDED, lands and disarms. What it saw goes to
@@ -123,11 +124,29 @@ def main(out: Path, plant: str) -> int:
             res["error"] = "did not arm"
             return 0
         interlock(True)
+        # MAVProxy, a second ground station on SERIAL2 (TCP 5763), while the vehicle flies
+        mavproxy = subprocess.Popen(
+            [sys.executable, "-m", "MAVProxy.mavproxy", "--master=tcp:127.0.0.1:5763", "--no-state",
+             f"--state-basedir={out}", "--source-system=254"],
+            stdin=subprocess.PIPE, stdout=(out / "mavproxy.log").open("w"), stderr=subprocess.STDOUT,
+            text=True,
+        )  # fmt: skip
         wait_sim(15.0)  # rotor run-up (H_RSC_RUNUP_TIME)
         t_takeoff = sim_time(out)
         conn.mav.command_long_send(1, 1, mavutil.mavlink.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, 0, TAKEOFF_M)
-        wait_sim(30.0)  # climb and hover
+        wait_sim(15.0)  # climb
+        assert mavproxy.stdin is not None  # its parameters are fetched by now: ask, as typed
+        mavproxy.stdin.write("param show H_SW_TYPE\nparam show FRAME_CLASS\nstatus EKF_STATUS_REPORT\n")
+        mavproxy.stdin.flush()
+        wait_sim(15.0)  # hover
         t_hover_end = sim_time(out)
+        mavproxy.stdin.close()  # EOF: MAVProxy ends
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            mavproxy.wait(10)
+        if mavproxy.poll() is None:
+            mavproxy.kill()
+            mavproxy.wait()
+        res["mavproxy"] = (out / "mavproxy.log").read_text(errors="replace")
         res["t_takeoff"], res["t_hover_end"] = t_takeoff, t_hover_end
         # the paper's trajectory, streamed by heli-ground over the firmware's SERIAL1; our
         # link keeps pumping in a thread, so the modes and the arming state are still seen

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -32,15 +33,16 @@ def _start(tmp_path: Path, plant: str) -> subprocess.Popen[bytes]:
 
 def _result(tmp_path: Path, plant: str) -> tuple[dict[str, object], dict[str, np.ndarray]]:
     res = json.loads((tmp_path / plant / "result.json").read_text())
-    print(plant, {k: v for k, v in res.items() if k not in ("texts", "params")})
+    print(plant, {k: v for k, v in res.items() if k not in ("texts", "params", "estimate_ned", "mavproxy")})
     return res, read_csv_columns(tmp_path / plant / "plant.csv")
 
 
 def test_ardupilot_flies_the_paper_plant_and_the_rotor_plant(tmp_path: Path) -> None:
     """On each plant (the two flights at once, each in its own network namespace): a ground
-    station sees ArduPilot's heartbeat (helicopter), the parameters the bench gave it (the
-    X-Cell's H3-120 head), its modes (GUIDED, then LAND) and its EKF status with an absolute
-    horizontal position; ArduPilot arms, runs the rotor up, takes off to 5 m, hovers (the
+    station (pymavlink; and MAVProxy, a second one, while it flies) sees ArduPilot's heartbeat
+    (helicopter), the parameters the bench gave it (the X-Cell's H3-120 head), its modes
+    (GUIDED, then LAND) and its EKF status with an absolute horizontal position; ArduPilot
+    arms, runs the rotor up, takes off to 5 m, hovers (the
     X-Cell tuning, docs/ardupilot-tuning.md: 0.025/0.029 m RMS and 0.042/0.048 m at most
     over the last 15 s measured, paper/rotor plant); then ``heli-ground fly --guided``
     streams the paper's spiral (3 m higher) and ArduPilot flies it in GUIDED: RMS [45, 120]
@@ -78,6 +80,12 @@ def test_ardupilot_flies_the_paper_plant_and_the_rotor_plant(tmp_path: Path) -> 
         rms = float(np.sqrt(np.mean(err**2)))
         print(f"{plant}: hover over 15 s: RMS {rms:.3f} m, max {err.max():.3f} m")
         assert err.max() < 0.1 and rms < 0.06  # twice the worst measured (0.048, 0.029 m)
+        mavproxy = str(res["mavproxy"])  # MAVProxy, a second ground station, while it flew
+        assert "Mode GUIDED" in mavproxy and re.search(r"Received \d{3,} parameters", mavproxy), mavproxy
+        for name, value in (("H_SW_TYPE", 3), ("FRAME_CLASS", 6)):
+            assert re.search(rf"(^|> ){name}\s+{value}\b", mavproxy, re.M), mavproxy  # (after its prompts)
+        ekf = re.search(r"EKF_STATUS_REPORT \{flags : (\d+)", mavproxy)
+        assert ekf is not None and int(ekf.group(1)) & 0x10, mavproxy  # an absolute horizontal position
         assert res["guided_exit"] == 0, res["guided_output"]
         print(f"{plant}: heli-ground fly --guided said:\n{res['guided_output']}")
         track = truth_tracking(tmp_path / plant / "track.csv", tmp_path / plant / "plant.csv", (45.0, 120.0))
