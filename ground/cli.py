@@ -81,6 +81,9 @@ def build_parser() -> argparse.ArgumentParser:
                           "3 m above home)")
     fly.add_argument("--window-s", type=float, nargs=2, default=None, metavar=("FROM", "TO"),
                      help="--guided: the tracking window in trajectory time (default: [45, end], or all)")
+    fly.add_argument("--pace-port", type=arg.port, default=None,
+                     help="--guided: the plant's pacer port (heli-sitl up --firmware ardupilot: 9008+10N): "
+                          "the simulation waits for this ground station (for --speedup > 1)")
     fly.add_argument("--track-csv", type=Path, default=None,
                      help="--guided: write the streamed target and the vehicle's estimate to this CSV")
     fly.set_defaults(func=_fly)
@@ -238,7 +241,7 @@ def _fly_guided(args: argparse.Namespace) -> int:
     window = None if args.window_s is None else (float(args.window_s[0]), float(args.window_s[1]))
     if window is not None and not (0.0 <= window[0] < window[1]):
         raise UsageError(f"--window-s {window[0]:g} {window[1]:g}: expected 0 <= FROM < TO")
-    opts = GuidedOptions(rate_hz=args.rate_hz, lift_m=args.lift_m, window_s=window)
+    opts = GuidedOptions(rate_hz=args.rate_hz, lift_m=args.lift_m, window_s=window, pace_port=args.pace_port)
     tlog = TlogWriter(args.tlog) if args.tlog else None
     try:
         with _client(args, tlog) as gc:

@@ -144,7 +144,8 @@ class GroundClient(Closing):
         self.vehicles: dict[int, Address] = {}
         self.latest: dict[str, Message] = {}  # the vehicle's latest message of each type
         self.texts: deque[tuple[float, int, str]] = deque(maxlen=200)  # (monotonic, severity, text)
-        self.listeners: list[Callable[[Message], None]] = []
+        self.listeners: list[Callable[[Message], None]] = []  # called with each message received
+        self.after_poll: list[Callable[[], None]] = []  # called once a batch has been received
         self._queue: deque[Message] = deque()
         self._next_heartbeat = 0.0
         self._param_types: dict[str, int] = {}
@@ -187,6 +188,8 @@ class GroundClient(Closing):
                     self.texts.append((now, int(m.severity), str(m.text)))
             for fn in self.listeners:
                 fn(m)
+        for after in self.after_poll:
+            after()
         return msgs
 
     def recv_match(self, pred: Callable[[Message], bool], timeout_s: float) -> Message | None:

@@ -25,14 +25,21 @@ starts on the ground (the paper's spiral starts at home) is lifted: every setpoi
 ``lift_m`` higher (default: enough for the lowest point to be ``min_height_m`` above
 home), which changes no tracking figure on a plant without ground effect.
 
+A vehicle simulated faster than the wall clock (ArduPilot's ``--speedup``) does not wait for
+a ground station that lost the CPU for a moment; with ``pace_port`` this one joins the
+lockstep: after each batch received it tells the plant's pacer (:mod:`heli_plant.pacer`) how
+far the physics may run (``pace_horizon_s`` past the newest vehicle time heard).
+
 The tracking is measured from the vehicle's own LOCAL_POSITION_NED (its estimate; the truth
 is the simulator's, plant.csv): RMS and maximum over a window of trajectory time.
 """
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import math
+import socket
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -44,8 +51,9 @@ import numpy as np
 from autopilot.trajectory.base import Trajectory
 from autopilot.trajectory.sampled import TimedSamples
 from ground.client import PX4_MAIN_OFFBOARD, CommandRefusedError, GroundClient, GroundError, LinkTimeoutError
+from heli_common.ardupilot_json import encode_pace
 from heli_common.frames import flip_rows, nwu_to_ned
-from heli_common.mavlink.udp import Message, mavlink2
+from heli_common.mavlink.udp import LOOPBACK, Message, mavlink2
 
 m2 = mavlink2
 ARDUPILOT_GUIDED, ARDUPILOT_LAND = 4, 9  # ArduCopter custom modes (Copter's mode numbers)
@@ -54,6 +62,10 @@ MAV_CMD_DO_AUX_FUNCTION = 218
 AUX_MOTOR_INTERLOCK = 32  # RC_Channel::AUX_FUNC::MOTOR_INTERLOCK
 AUX_LOW, AUX_HIGH = 0, 2
 TYPE_MASK = m2.POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE  # position, velocity, acceleration, yaw
+# the streams asked of ArduPilot [Hz of vehicle time]: positions (LOCAL_POSITION_NED), the
+# attitude (ATTITUDE: the heading held), the status (SYS_STATUS, EXTENDED_SYS_STATE)
+STREAMS_HZ = ((m2.MAV_DATA_STREAM_POSITION, 25), (m2.MAV_DATA_STREAM_EXTRA1, 4),
+              (m2.MAV_DATA_STREAM_EXTENDED_STATUS, 2))  # fmt: skip
 PAPER_WINDOW_START_S = 45.0  # the paper's convention: tracking after the transient
 
 
@@ -69,6 +81,10 @@ class GuidedOptions:
     window_s: tuple[float, float] | None = None  # tracking window; None: [45, end] or all
     wall_factor: float = 10.0  # wall-clock limit of each phase = vehicle time x this + 30 s
     land: bool = True
+    # the plant's pacer (heli_plant.pacer, UDP 9008 + 10 N under heli-sitl up --firmware
+    # ardupilot): the physics waits for this ground station; None: it runs free
+    pace_port: int | None = None
+    pace_horizon_s: float = 0.25  # how far the physics may run ahead of what was heard
 
 
 @dataclass(frozen=True)
@@ -81,11 +97,16 @@ class TrackingSummary:
     samples: int
     t0_vehicle_s: float  # the vehicle's clock at trajectory time 0
     lift_m: float
+    # the longest stretch of vehicle time without a setpoint while following (NaN: not
+    # known); ArduPilot stops following after GUID_TIMEOUT (3 s) without one
+    max_setpoint_gap_s: float = math.nan
 
     def line(self) -> str:
         a, b = self.window_s
+        gap = "" if math.isnan(self.max_setpoint_gap_s) else (
+            f"; setpoints at most {self.max_setpoint_gap_s:.2f} s of vehicle time apart")
         return (f"tracking over [{a:g}, {b:g}] s: RMS {self.rms_m:.3f} m, "
-                f"max {self.max_m:.3f} m ({self.samples} samples)")  # fmt: skip
+                f"max {self.max_m:.3f} m ({self.samples} samples){gap}")  # fmt: skip
 
 
 def lift_for(traj: Trajectory, min_height_m: float) -> float:
@@ -129,7 +150,12 @@ class GuidedFlight:
         self._yaw_ned_rad = 0.0
         self._next_send_s = -math.inf
         self._next_keepalive = 0.0
-        self.t_vehicle_s: float | None = None
+        self.t_vehicle_s: float | None = None  # the newest vehicle time heard
+        self._last_send_s: float | None = None
+        self.max_gap_s = 0.0  # the longest stretch of vehicle time between two setpoints
+        self._pace: socket.socket | None = None
+        if opts.pace_port is not None:
+            self._pace = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.pos_ned_m: tuple[float, float, float] | None = None
 
     # ------------------------------------------------------------------ the stream
@@ -156,21 +182,38 @@ class GuidedFlight:
     def _on_message(self, m: Message) -> None:
         if not self.gc.from_vehicle(m) or m.get_type() != "LOCAL_POSITION_NED":
             return
-        self.t_vehicle_s = m.time_boot_ms / 1e3
-        self.pos_ned_m = (float(m.x), float(m.y), float(m.z))
-        self._maybe_send(self.t_vehicle_s)
+        t = m.time_boot_ms / 1e3
+        if self.t_vehicle_s is None or t >= self.t_vehicle_s:
+            self.t_vehicle_s = t
+            self.pos_ned_m = (float(m.x), float(m.y), float(m.z))
 
-    def _maybe_send(self, t_vehicle_s: float | None) -> None:
-        if self._target is None:
+    def _pace_to(self, until_s: float) -> None:
+        if self._pace is not None and self.opts.pace_port is not None:
+            with contextlib.suppress(OSError):  # no plant listening: nothing waits
+                self._pace.sendto(encode_pace(until_s), (LOOPBACK, self.opts.pace_port))
+
+    def _after_batch(self) -> None:
+        if self.t_vehicle_s is not None:
+            self._pace_to(self.t_vehicle_s + self.opts.pace_horizon_s)
+        self._maybe_send()
+
+    def _maybe_send(self) -> None:
+        """Once per received batch: the setpoint for the NEWEST vehicle time heard (a batch
+        queued while this process waited holds stale times: answering each would stream a
+        target seconds behind a vehicle running faster than the wall clock), when due; and
+        every 0.5 s of wall time anyway, so a paused vehicle still hears a live stream."""
+        t = self.t_vehicle_s
+        if self._target is None or t is None:
             return
         now = time.monotonic()
-        due = t_vehicle_s is not None and t_vehicle_s >= self._next_send_s
-        if not due and now < self._next_keepalive:
+        if t < self._next_send_s and now < self._next_keepalive:
             return
-        t = t_vehicle_s if t_vehicle_s is not None else 0.0
+        if self._last_send_s is not None:
+            self.max_gap_s = max(self.max_gap_s, t - self._last_send_s)
         self.gc.send(self._setpoint(t, self._target(t)))
-        self._next_send_s = t + 1.0 / self.opts.rate_hz
-        self._next_keepalive = now + 0.5  # a paused vehicle still hears a live stream
+        self._last_send_s = t
+        self._next_send_s = t + 0.75 / self.opts.rate_hz  # (positions come at their own rate)
+        self._next_keepalive = now + 0.5
 
     def _pump(self, until: Callable[[], bool], vehicle_s: float, what: str) -> None:
         """Receive (and stream) until ``until()``; LinkTimeoutError after ``vehicle_s`` of
@@ -185,7 +228,6 @@ class GuidedFlight:
             if t_start is not None and t is not None and t - t_start > vehicle_s:
                 raise LinkTimeoutError(late)
             self.gc.poll(0.05)
-            self._maybe_send(None)
 
     def _retry(self, what: str, action: Callable[[], None], vehicle_s: float) -> None:
         """``action`` until the vehicle accepts it (a refusal is retried once a second of
@@ -259,6 +301,7 @@ class GuidedFlight:
         assert self.t_vehicle_s is not None
         t0 = self.t_vehicle_s
         self._target = lambda t: self._row(t - t0)
+        self.max_gap_s = 0.0
         rows: list[tuple[float, float]] = []  # (t_traj, error)
         writer = csv.writer(out) if out is not None else None
         if writer is not None:
@@ -287,7 +330,7 @@ class GuidedFlight:
         if err.size == 0:
             raise GroundError(f"no LOCAL_POSITION_NED from the vehicle in the window [{w[0]:g}, {w[1]:g}] s")
         return TrackingSummary(w, float(np.sqrt(np.mean(err**2))), float(err.max()), int(err.size), t0,
-                               self.lift_m)  # fmt: skip
+                               self.lift_m, self.max_gap_s)  # fmt: skip
 
     def _land(self) -> None:
         gc = self.gc
@@ -306,12 +349,14 @@ class GuidedFlight:
     def run(self) -> TrackingSummary:
         gc = self.gc
         gc.listeners.append(self._on_message)
+        gc.after_poll.append(self._after_batch)
         try:
-            # ArduPilot streams nothing on a link until asked; this bench's vehicle ignores it
-            gc.send(m2.MAVLink_request_data_stream_message(gc.target_system, gc.target_component,
-                                                           m2.MAV_DATA_STREAM_ALL, 10, 1))  # fmt: skip
-            gc.send(m2.MAVLink_request_data_stream_message(gc.target_system, gc.target_component,
-                                                           m2.MAV_DATA_STREAM_POSITION, 25, 1))  # fmt: skip
+            # ArduPilot streams nothing on a link until asked (this bench's vehicle ignores the
+            # request). Only what the stream needs: a vehicle running 10x faster than the wall
+            # clock multiplies every rate, and a flood to parse would delay the setpoints.
+            for stream, hz in STREAMS_HZ:
+                gc.send(m2.MAVLink_request_data_stream_message(gc.target_system, gc.target_component,
+                                                               stream, hz, 1))  # fmt: skip
             self._pump(lambda: self.t_vehicle_s is not None, 30.0, "waiting for LOCAL_POSITION_NED")
             att = gc.latest.get("ATTITUDE")
             self._yaw_ned_rad = float(att.yaw) if att is not None else 0.0  # hold the heading
@@ -334,13 +379,17 @@ class GuidedFlight:
                     summary = self._follow(out)
             else:
                 summary = self._follow(None)
-            self.say(f"{summary.line()}, of the vehicle's own estimate")
+            self.say(f"{summary.line()}; of the vehicle's own estimate")
             if self.opts.land:
                 self._land()
                 self.say("landed and disarmed")
             return summary
         finally:
             gc.listeners.remove(self._on_message)
+            gc.after_poll.remove(self._after_batch)
+            self._pace_to(math.inf)  # the physics runs free again
+            if self._pace is not None:
+                self._pace.close()
 
 
 def truth_tracking(

@@ -235,3 +235,13 @@ def json_state_from_plant(t_s: float, x: npt.ArrayLike, accel_flu_m_s2: _VecIn) 
         vel_ned_m_s=f[NF_VEL : NF_VEL + 3],
         quat_wxyz=f[NF_QUAT : NF_QUAT + 4],
     )
+
+
+# -- the pacer: a ground station in the lockstep (heli_plant.pacer) ------------------------
+PACE_PORT_OFFSET = 6  # beside the JSON port (9002 + 10 N): 9008 + 10 N
+PACE = struct.Struct("<d")  # the physics time [s] up to which the client is ready
+
+
+def encode_pace(until_s: float) -> bytes:
+    """The pacer datagram: the physics may run to ``until_s``; NaN or +inf releases it."""
+    return PACE.pack(until_s)

@@ -14,7 +14,9 @@ rotor speed); with the interlock off the blades are held at zero pitch, so the r
 no thrust (``thrust_coeff`` is odd in the pitch). On Gavrilets' plant the governor holds its
 set speed from power-up and the interlock acts the same way (the run-up is not modelled).
 
-The clock is the firmware's: this loop only answers. A repeated frame is answered again by
+The clock is the firmware's: this loop only answers; but a ground station streaming on that
+clock may join the lockstep through :mod:`heli_plant.pacer` (the physics waits for it).
+A repeated frame is answered again by
 :class:`~heli_plant.ardupilot_link.ArduPilotJsonLink` without a step; a frame count that
 goes back (a new firmware process) restarts the plant from its initial state.
 """
@@ -35,6 +37,7 @@ from heli_common.state import N_PITCH, PITCH_NAMES, STATE_NAMES, FloatArray
 from heli_common.swashplate import Swashplate, rsc_request
 from heli_plant.ardupilot_link import ArduPilotJsonLink
 from heli_plant.model import Plant
+from heli_plant.pacer import Pacer
 from heli_plant.sensors.model import earth_accel_from_states, specific_force_flu
 
 RECORD_PERIOD_S = 0.01  # plant.csv: one row per 10 ms of physics time (the bench's 100 Hz)
@@ -68,11 +71,13 @@ class ArduPilotBackend:
         swash: Swashplate,
         link: ArduPilotJsonLink,
         record: IO[str] | None = None,
+        pacer: Pacer | None = None,
     ) -> None:
         self._make_plant = make_plant
         self.plant: Plant = make_plant()
         self.swash = swash
         self.link = link
+        self.pacer = pacer  # a ground station in the lockstep (heli_plant.pacer), if any
         self.stats = BackendStats()
         self.t_s = 0.0  # the physics time the firmware was last told
         self._interlock = False
@@ -137,11 +142,15 @@ class ArduPilotBackend:
                 continue
             if self.link.last_frame_was_reset and self.stats.frames:
                 self._reset()
+            if self.pacer is not None:
+                self.pacer.wait_until(self.t_s + frame.dt_s)
             self.link.answer(self.step(frame.pwm_us, frame.dt_s))
             if duration_s is not None and self.t_s >= duration_s - 1e-9:
                 break
         self.stats.link = dict(vars(self.link.counters))
         self.stats.link["refused"] = dict(vars(self.link.counters.refused))
+        if self.pacer is not None:
+            self.stats.link["pacer"] = dict(vars(self.pacer.counts))
         return self.stats
 
 

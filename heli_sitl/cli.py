@@ -241,6 +241,7 @@ def _run_ardupilot_json(args: argparse.Namespace) -> int:
     from heli_plant.ardupilot_backend import ArduPilotBackend, open_record
     from heli_plant.ardupilot_link import ArduPilotJsonLink, port_for_instance
     from heli_plant.model import Plant
+    from heli_plant.pacer import PACE_PORT_OFFSET, Pacer
 
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
@@ -260,12 +261,13 @@ def _run_ardupilot_json(args: argparse.Namespace) -> int:
 
     try:
         link = ArduPilotJsonLink(port)
+        pacer = Pacer(port + PACE_PORT_OFFSET)
     except PortBusyError as exc:
         print(f"heli-sitl: {exc.strerror}", file=sys.stderr)
         return Exit.PORT_BUSY
-    with link:
+    with link, pacer:
         try:
-            stats = ArduPilotBackend(make_plant, swash, link, record).run(stop, args.duration_s)
+            stats = ArduPilotBackend(make_plant, swash, link, record, pacer).run(stop, args.duration_s)
         finally:
             if record is not None:
                 record.close()
