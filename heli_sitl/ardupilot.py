@@ -18,8 +18,10 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from heli_common.ardupilot_json import PACE_PORT_OFFSET
 from heli_common.config import CONFIG_DIR
 from heli_common.defaults import HOME, ports
+from heli_plant.ardupilot_link import port_for_instance
 from heli_sitl.children import Child, spawn, stop_all
 
 ENV_BIN = "ARDUPILOT_HELI_BIN"  # where the firmware is, if not given on the command line
@@ -108,9 +110,11 @@ def serve(opts: ArduPilotOptions, stop_after_s: float | None = None) -> None:
     """Run both until Ctrl-C (or ``stop_after_s``), then stop both."""
     children = start(opts)
     port = 5760 + 10 * opts.instance
+    pace = port_for_instance(opts.instance) + PACE_PORT_OFFSET
     print(f"heli-sitl up --firmware ardupilot: ArduPilot serves ground stations on TCP 127.0.0.1:{port} "
-          f"(mavproxy.py --master tcp:127.0.0.1:{port}); the plant's truth goes to {opts.out}/plant.csv; "
-          "Ctrl-C to stop", flush=True)  # fmt: skip
+          f"(mavproxy.py --master tcp:127.0.0.1:{port}) and sends to UDP {ports(opts.instance).gcs} "
+          f"(heli-ground fly --guided FILE --pace-port {pace}); the plant's truth goes to "
+          f"{opts.out}/plant.csv; Ctrl-C to stop", flush=True)  # fmt: skip
     t0 = time.monotonic()
     try:
         while stop_after_s is None or time.monotonic() - t0 < stop_after_s:
