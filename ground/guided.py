@@ -84,7 +84,10 @@ class GuidedOptions:
     # the plant's pacer (heli_plant.pacer, UDP 9008 + 10 N under heli-sitl up --firmware
     # ardupilot): the physics waits for this ground station; None: it runs free
     pace_port: int | None = None
-    pace_horizon_s: float = 0.25  # how far the physics may run ahead of what was heard
+    # how far the physics may run ahead of the newest position heard (more than its 0.04 s
+    # period: 0.1 s made the lockstep wait on the ground station's every round trip, 3x
+    # slower on a loaded machine; 0.25 s of stale target is 0.2 m on the paper's circle)
+    pace_horizon_s: float = 0.25
 
 
 @dataclass(frozen=True)

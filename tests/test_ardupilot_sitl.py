@@ -16,9 +16,12 @@ import numpy as np
 import pytest
 from netns import unshare_reason
 
+from autopilot.scenario import Scenario
 from ground.guided import truth_tracking
 from ground.plots import read_csv_columns
 from heli_sitl.ardupilot import FirmwareNotFoundError, find_firmware
+from heli_sitl.guided_record import guided_record
+from heli_sitl.scorecard import score
 
 pytestmark = [pytest.mark.slow, pytest.mark.processes]
 SCRIPT = Path(__file__).resolve().parent / "ardupilot_flight.py"
@@ -46,8 +49,10 @@ def test_ardupilot_flies_the_paper_plant_and_the_rotor_plant(tmp_path: Path) -> 
     X-Cell tuning, docs/ardupilot-tuning.md: 0.025/0.029 m RMS and 0.042/0.048 m at most
     over the last 15 s measured, paper/rotor plant); then ``heli-ground fly --guided``
     streams the paper's spiral (3 m higher) and ArduPilot flies it in GUIDED: RMS [45, 120]
-    of the truth 0.124/0.125-0.128 m, max 0.149-0.151/0.155-0.202 m measured (of its own
-    estimate: 0.027/0.028 m; its EKF's height sits 0.11 m off the truth); it lands and
+    of the truth 0.124-0.141 m on either plant, max 0.149-0.241 m measured over seven runs (of
+    its own estimate: 0.026-0.028 m; its EKF's height sits 0.11 m off the truth; the spread
+    is the machine's load: a setpoint is up to 0.25 s stale, the pacer's horizon); through
+    the comparison's scorecard its steady RMS ([10, 120]) is 0.15-0.18 m; it lands and
     disarms."""
     try:
         find_firmware(None)
@@ -96,5 +101,10 @@ def test_ardupilot_flies_the_paper_plant_and_the_rotor_plant(tmp_path: Path) -> 
         # most); unpaced, a ground station starved of the CPU for 0.3 s of wall time left
         # ArduPilot 3 s of vehicle time without setpoints at --speedup 10, and it stopped
         assert gap is not None and float(gap.group(1)) < 0.5, res["guided_output"]  # paced: 0.16 s measured
-        assert track.rms_m < 0.26 and track.max_m < 0.4, res["guided_output"]  # twice the worst measured
+        assert track.rms_m < 0.28 and track.max_m < 0.5, res["guided_output"]  # 2x the worst: 0.141, 0.241
+        # the same flight through the comparison's scorecard, as the TLC's and the PID's are read
+        card = score(guided_record(tmp_path / plant / "plant.csv", tmp_path / plant / "track.csv", 120.0),
+                     Scenario.load("paper"))  # fmt: skip
+        print(f"{plant}: scorecard {card}")
+        assert card.lost == 0.0 and card.steady_rms_m < 0.37  # twice the worst measured ([10, 120]: 0.183 m)
         assert res["disarmed_after_landing"] and pos[-1, 2] < 0.05  # landed, disarmed
