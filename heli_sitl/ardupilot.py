@@ -94,13 +94,14 @@ def commands(opts: ArduPilotOptions) -> list[tuple[str, list[str], Path | None]]
     return [("plant", plant, None), ("arducopter-heli", firmware, fw_dir)]
 
 
-def start(opts: ArduPilotOptions) -> list[Child]:
-    """Start the plant first (the firmware's first frame needs a listener), then the firmware."""
+def start(opts: ArduPilotOptions, echo: bool = True) -> list[Child]:
+    """Start the plant first (the firmware's first frame needs a listener), then the firmware
+    (their stderr echoed on ours if ``echo``; always in their logs)."""
     children = []
     for name, cmd, cwd in commands(opts):
         if cwd is not None:
             cwd.mkdir(parents=True, exist_ok=True)
-        children.append(spawn(cmd, name, opts.out / "logs" / f"{name}.log", echo=True, cwd=cwd))
+        children.append(spawn(cmd, name, opts.out / "logs" / f"{name}.log", echo=echo, cwd=cwd))
         if name == "plant":
             time.sleep(1.0)  # its socket is bound after the imports; a frame before is lost
     return children

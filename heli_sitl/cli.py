@@ -223,6 +223,7 @@ def _compare(args: argparse.Namespace) -> int:
     from heli_sitl.comparison import command_line, run_compare
 
     run_compare(args.file, Path(args.out), Path(args.work), samples=args.samples, seeds=args.seeds,
+                ardupilot_bin=args.ardupilot_bin,
                 workers=args.workers,
                 quiet=args.quiet, command=command_line())  # fmt: skip
     return 0
@@ -599,6 +600,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="comparison TOML (default: configs/compare.toml)")
     k.add_argument("--out", required=True, help="report, figures and numbers (e.g. docs/comparison)")
     k.add_argument("--work", default="out/compare", help="the campaigns' Parquet rows (a re-run resumes)")
+    k.add_argument("--ardupilot-bin", default=None,
+                   help="an ArduPilot contender's arducopter-heli SITL binary (default: $ARDUPILOT_HELI_BIN, "
+                        "../shared/ardupilot)")
     k.add_argument("--samples", type=arg.count, default=None, help="Monte Carlo campaigns: flights each")
     k.add_argument("--seeds", type=arg.count, default=None,
                    help="paired Monte Carlo sets: flights each (default: the file's seeds)")

@@ -200,8 +200,9 @@ def load_compare(path: str | Path = "compare.toml") -> CompareSpec:
         where = f"{src}: contender[{i}]"
         per = _on_plant(where, c.pop("plant")) if "plant" in c else ()
         con = Contender(**c, on_plant=per)
-        try:  # tlc, pid or a user's class (loaded here, once, to fail before any flight)
-            con = dataclasses.replace(con, controller=normalise_spec(con.controller))
+        try:  # tlc, pid, ardupilot or a user's class (loaded here, once, to fail before any flight)
+            if con.controller != ARDUPILOT:
+                con = dataclasses.replace(con, controller=normalise_spec(con.controller))
         except ConfigError as exc:
             raise ConfigError(f"{src}: contender[{i}].controller: {exc}") from exc
         if con.feedforward not in ("", "pseudo", "exact"):
@@ -213,6 +214,10 @@ def load_compare(path: str | Path = "compare.toml") -> CompareSpec:
     if len({c.slug for c in contenders}) != len(contenders):
         raise ConfigError(f"{src}: contender labels must differ ({', '.join(labels)})")
     reference, reference_on = _reference(src, t, labels)
+    firmware = {c.label for c in contenders if c.controller == ARDUPILOT}
+    if firmware & {reference, *(lab for _, lab in reference_on)}:
+        raise ConfigError(f"{src}: reference: the ArduPilot contender flies no paired Monte Carlo "
+                          "set; choose one of the bench's controllers")  # fmt: skip
     plants = _names(src, t, "plants") if "plants" in t else (str(t.get("plant", "paper")),)
     seeds, speed = t.get("seeds", 20), t.get("max_speed_m_s", 0.0)
     if not isinstance(seeds, int) or isinstance(seeds, bool) or not 2 <= seeds <= 10_000:
@@ -234,7 +239,7 @@ def load_compare(path: str | Path = "compare.toml") -> CompareSpec:
         PlantModel.load(plant)
     for con in (c for plant in spec.plants for c in spec.contenders_on(plant)):  # every file loads first
         for tr in spec.trajectories:
-            scenario_for(tr.name, con)
+            scenario_for(tr.name, dataclasses.replace(con, gains="") if con.controller == ARDUPILOT else con)
         if con.pid_gains:
             PidGains.load(con.pid_gains)
     for w in (*spec.worlds, *(x for tr in spec.trajectories for x in (tr.world, tr.mc_world) if x)):
@@ -318,6 +323,29 @@ def fly(f: Flight) -> FlightScore:
         nan = math.nan
         return FlightScore(nan, nan, nan, nan, nan, nan, nan, nan, 1.0)
     return score(rec, sc)
+
+
+ARDUPILOT = "ardupilot"  # a contender's controller: ArduPilot's firmware (heli_sitl.ardupilot_contender)
+FIRMWARE_NOTE = (
+    "ArduPilot (`arducopter-heli` SITL on this plant, `configs/ardupilot/xcell60.parm`) flies each "
+    "trajectory once, through processes, in GUIDED from `heli-ground fly --guided`'s stream: it takes "
+    "off and reaches the trajectory's start before t = 0 (the bench's contenders start at the "
+    "scenario's initial state, off the path), flies on its own EKF3 and sensors, and a trajectory "
+    "starting at ground level is flown 3 m higher. Its cyclic rate is the swashplate's reading of "
+    "its servo outputs; it flies no Monte Carlo set and no campaign (about a minute a flight)."
+)
+
+
+def fly_firmware(scenario: str, plant: str, out: Path, firmware: Path, world: str = "") -> FlightScore:
+    """ArduPilot's flight of ``scenario`` (heli_sitl.ardupilot_contender); lost if it fails."""
+    from heli_sitl.ardupilot_contender import fly_ardupilot
+
+    try:
+        return fly_ardupilot(scenario, plant, out, firmware=firmware, world=world or None).score
+    except (RuntimeError, ValueError, OSError) as exc:  # the firmware's failure is its flight's
+        print(f"ArduPilot's flight of {scenario} on the {plant} plant failed: {exc}", file=sys.stderr)
+        nan = math.nan
+        return FlightScore(nan, nan, nan, nan, nan, nan, nan, nan, 1.0)
 
 
 def mc_seeds(n: int) -> tuple[int, ...]:
@@ -660,9 +688,18 @@ def run_compare(
     quiet: bool = False,
     command: str = "",
     seeds: int | None = None,
+    ardupilot_bin: str | None = None,
 ) -> dict[str, Any]:
     t0 = time.perf_counter()
     spec = load_compare(path)
+    firmware = None
+    if any(c.controller == ARDUPILOT for c in spec.contenders):
+        from heli_sitl.ardupilot import FirmwareNotFoundError, find_firmware
+
+        try:
+            firmware = find_firmware(ardupilot_bin)
+        except FirmwareNotFoundError as exc:
+            raise ConfigError(f"{spec.source}: an ArduPilot contender: {exc}") from None
     if seeds is not None:
         spec = dataclasses.replace(spec, seeds=seeds)
     out.mkdir(parents=True, exist_ok=True)
@@ -694,7 +731,11 @@ def run_compare(
             return list(client.gather(client.map(fly, flights, pure=False)))
 
         for plant in spec.plants:
-            contenders = spec.contenders_on(plant)  # each with its gains for this plant
+            everyone = spec.contenders_on(plant)  # each with its gains for this plant
+            # ArduPilot flies each trajectory once, through processes (about a minute a flight):
+            # no Monte Carlo set, no campaign
+            contenders = tuple(c for c in everyone if c.controller != ARDUPILOT)
+            firmware_contenders = tuple(c for c in everyone if c.controller == ARDUPILOT)
             ref = spec.reference_for(plant)
             say(f"plant {plant}: {len(spec.trajectories)} trajectories, {len(spec.worlds)} worlds, "
                 f"{spec.seeds} seeds each")  # fmt: skip
@@ -705,6 +746,13 @@ def run_compare(
             traj: dict[str, dict[str, FlightScore]] = {}
             for (tr, c), sc in zip(det, scores, strict=True):
                 traj.setdefault(tr.name + (f" ({tr.world})" if tr.world else ""), {})[c.label] = sc
+            for tr in spec.trajectories:
+                for c in firmware_contenders:
+                    assert firmware is not None
+                    d = work / plant / f"{c.slug}-{tr.name}"
+                    say(f"{c.label} flies {tr.name} on the {plant} plant (processes): {d}")
+                    sc = fly_firmware(tr.name, plant, d, firmware, tr.world)
+                    traj.setdefault(tr.name + (f" ({tr.world})" if tr.world else ""), {})[c.label] = sc
             pres["trajectories"] = {k: {lab: v.as_dict() for lab, v in by.items()} for k, by in traj.items()}
             # the paired Monte Carlo sets: each trajectory in its turbulent world, then the
             # base scenario in each world preset; every contender the same seeds
@@ -722,6 +770,8 @@ def run_compare(
                   for t, by in by_set.items()]  # fmt: skip
             pres["monte_carlo"] = [m.as_dict() for m in mc]
             pres["contenders"] = {c.label: c.gains or c.pid_gains for c in contenders}
+            for c in firmware_contenders:
+                pres["contenders"][c.label] = "configs/ardupilot/xcell60.parm"
             part = [
                 f"## The {plant} plant",
                 "",
@@ -731,6 +781,7 @@ def run_compare(
                 "",
                 trajectory_table(traj),
                 "",
+                *([FIRMWARE_NOTE, ""] if firmware_contenders else []),
                 f"### Paired Monte Carlo: {spec.seeds} seeds per set, every contender the same; "
                 f"against `{ref}`",
                 "",
