@@ -36,8 +36,8 @@ from heli_common.links import ServoOutput
 from heli_common.mavlink.udp import LOOPBACK
 from heli_common.mavlink.wire import read_signing_key
 from heli_common.process import UsageError, run_main
-from heli_common.servo_link import add_servo_args, load_servo_link, with_overrides
-from heli_common.servo_map import limits_array
+from heli_common.servo_link import add_servo_args, load_servo_link, servo_map_for, with_overrides
+from heli_common.servo_map import ServoMap, limits_array
 from heli_common.world import World
 
 log = logging.getLogger("autopilot")
@@ -122,6 +122,7 @@ def make_gcs(
     limits: np.ndarray,
     world: World | None = None,
     pid_gains: PidGains | None = None,
+    servo_channels: ServoMap | None = None,
 ) -> GcsService:
     home = manager.cfg.home
     cfg = GcsConfig(
@@ -132,7 +133,8 @@ def make_gcs(
     )  # fmt: skip
     table = ParamTable(sc.gains, sc.airframe.limits, ctrl.rate_hz, home=home, system_id=args.sysid,
                        world=world, pid_gains=pid_gains)  # fmt: skip
-    return GcsService(cfg, table, lambda t: apply_params(ctrl, manager, t), limits, manager=manager)
+    return GcsService(cfg, table, lambda t: apply_params(ctrl, manager, t), limits, manager=manager,
+                      servo_channels=servo_channels)
 
 
 AUTOPILOT_PORTS = {"port": "autopilot", "plant_port": "plant", "gcs_port": "gcs", "api_port": "api",
@@ -164,14 +166,16 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
     # flushed in small pieces (20 a second): each costs a fraction of a period
     recorder = Recorder(stream_csv=out / "run.csv", flush_every=max(5, round(rate / 20))) if out else None
     t0_unix_us = int(time.time() * 1e6)
-    gcs = None if args.no_gcs else make_gcs(args, sc, ctrl, manager, limits, world, pid_gains)
     servo = with_overrides(load_servo_link(args.links), args.servo_link, args.can_bus, args.actuator_ids)
+    servos = servo_map_for(args.ccpm, servo.link, limits)  # the channels: pitches, or CCPM servos
+    ccpm = servos if not isinstance(servos, np.ndarray) else None
+    gcs = None if args.no_gcs else make_gcs(args, sc, ctrl, manager, limits, world, pid_gains, ccpm)
     can = None
     if servo.link == "can":
         can = CanServoSender(servo.can_bus, node_id=args.can_node_id or servo.node_id,
                              actuator_ids=servo.actuator_ids)  # fmt: skip
     try:
-        with SimLink((LOOPBACK, args.port), (LOOPBACK, args.plant_port), limits, manager.cfg.home) as sim:
+        with SimLink((LOOPBACK, args.port), (LOOPBACK, args.plant_port), servos, manager.cfg.home) as sim:
             servo_out: ServoOutput = CanServoOutput(can) if can is not None else sim
             services: list[TickService] = [gcs, WorldSync(gcs.params, sim.udp)] if gcs else []
             runner = Runner(ctrl, manager, sim, servo_out, cfg, services, recorder, estimator)

@@ -71,6 +71,7 @@ def wind_cov(t_us: int, world: World, air_nwu_m_s: tuple[float, float, float] | 
     return mavlink2.MAVLink_wind_cov_message(t_us, n, e, d, var, var, math.nan, math.nan, math.nan)
 
 
-def servo_output(t_us: int, pitches_rad: FloatArray, limits: FloatArray) -> Message:
+def servo_output(t_us: int, pitches_rad: FloatArray, limits: FloatArray | servo_map.ServoMap) -> Message:
+    """SERVO_OUTPUT_RAW: the four channels' PWM (blade pitches, or the CCPM servos)."""
     pwm = [int(p) for p in servo_map.to_pwm_us(pitches_rad, limits)] + [0] * 4
     return mavlink2.MAVLink_servo_output_raw_message(t_us & 0xFFFFFFFF, 0, *pwm)

@@ -12,6 +12,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from heli_common.config import ConfigError, build, read_toml, spec
+from heli_common.servo_map import CcpmMap, ServoMap
+from heli_common.state import FloatArray
+from heli_common.swashplate import Swashplate
+
+DEFAULT_SWASHPLATE = "swashplate/xcell60-h3-120.toml"
 
 
 @dataclass(frozen=True)
@@ -36,6 +41,22 @@ def add_servo_args(p: argparse._ActionsContainer) -> None:
     p.add_argument("--can-bus", default=None,
                    help="python-can bus: virtual[:ch], udp_multicast[:group[:port]], socketcan[:iface]")
     p.add_argument("--actuator-ids", default=None, help="DroneCAN actuator ids, e.g. 1,2,3,4")
+    p.add_argument("--ccpm", nargs="?", const=DEFAULT_SWASHPLATE, default=None, metavar="SWASHPLATE",
+                   help="CCPM: the MAVLink servo channels are the head's swash servos 1-3 and the tail "
+                        f"servo, mixed and read through SWASHPLATE (default {DEFAULT_SWASHPLATE}); give "
+                        "it to both processes")
+
+
+def servo_map_for(ccpm: str | None, link: str, limits: FloatArray) -> FloatArray | ServoMap:
+    """The servo channels' meaning: the airframe's limits (one channel per blade pitch), or
+    CCPM through a swashplate file (docs/swashplate.md); ConfigError for CCPM over DroneCAN
+    (its actuator commands carry blade pitches)."""
+    if ccpm is None:
+        return limits
+    if link != "mavlink":
+        raise ConfigError("--ccpm: the swashplate's servos travel on the MAVLink sim link only; DroneCAN's "
+                          "actuator commands carry blade pitches (--servo-link mavlink)")
+    return CcpmMap(Swashplate.load(ccpm))
 
 
 def load_servo_link(path: str | Path = "links.toml") -> ServoLinkConfig:

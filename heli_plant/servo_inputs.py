@@ -13,6 +13,7 @@ from heli_common.links import ServoCommand
 from heli_common.mavlink.fast import HilActuatorControls, ParamSet, SimCodec
 from heli_common.mavlink.sim_protocol import MAV_MODE_FLAG_SAFETY_ARMED, decode_command, receive
 from heli_common.mavlink.udp import MavlinkUdp
+from heli_common.servo_map import ServoMap
 from heli_common.state import FloatArray
 from heli_plant.can_endpoint import CanServoEndpoint
 
@@ -32,7 +33,11 @@ class MavlinkServoInput:
     carries_arming = True
 
     def __init__(
-        self, link: MavlinkUdp, codec: SimCodec, limits: FloatArray, on_setting: Setting | None = None
+        self,
+        link: MavlinkUdp,
+        codec: SimCodec,
+        limits: FloatArray | ServoMap,
+        on_setting: Setting | None = None,
     ) -> None:
         self.link = link
         self.codec = codec

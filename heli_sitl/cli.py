@@ -13,15 +13,18 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from heli_common import cli_args as arg
+from heli_common.config import ConfigError
 from heli_common.defaults import HOME, Exit, ports
 from heli_common.geo import parse_geo_point
 from heli_common.plant_model import PLANT_HELP
 from heli_common.process import UsageError, run_main
-from heli_common.servo_link import add_servo_args
+from heli_common.servo_link import add_servo_args, servo_map_for
+from heli_common.servo_map import limits_array
 from heli_common.world import World
 
 if TYPE_CHECKING:
     from autopilot.flight_metrics import FlightMetrics
+    from heli_common.links import ServoInput
 
 GAINS_HELP = ("the controller's gain set instead of the scenario's (configs/: gains_paper.toml, "
               "gains_servo_aware.toml for real servos, see docs/servo-aware-gains.md)")
@@ -318,7 +321,7 @@ def _run(args: argparse.Namespace) -> int:
     with link:  # closed however this ends, and so is the CAN bus: no shutdown warnings
         servo = with_overrides(load_servo_link(args.links), args.servo_link, args.can_bus, args.actuator_ids)
         can = None
-        servo_in = None
+        servo_in: ServoInput | None = None
         if servo.link == "can":
             from heli_plant.can_endpoint import CanServoEndpoint
             from heli_plant.servo_inputs import CanServoInput
@@ -326,6 +329,15 @@ def _run(args: argparse.Namespace) -> int:
             can = CanServoEndpoint(servo.can_bus, limits=airframe.limits, actuator_ids=servo.actuator_ids,
                                    timeout_s=servo.timeout_s)  # fmt: skip
             servo_in = CanServoInput(can)
+        try:
+            servos = servo_map_for(args.ccpm, servo.link, limits_array(airframe.limits.as_tuple()))
+        except ConfigError as exc:
+            raise UsageError(str(exc)) from None
+        if servo_in is None and args.ccpm is not None:
+            from heli_common.mavlink.fast import SimCodec
+            from heli_plant.servo_inputs import MavlinkServoInput
+
+            servo_in = MavlinkServoInput(link, SimCodec(system_id=1, component_id=51), servos)
         try:
             stats = PlantServer(plant, link, cfg, servo_in).run(stop)
             if can is not None:
@@ -374,6 +386,7 @@ def _up(args: argparse.Namespace) -> int:
         gcs_port=args.gcs_port, api_port=args.api_port, local_gcs_port=args.local_gcs_port,
         local_api_port=args.local_api_port, signing_key=args.signing_key, out=args.out,
         sysid=args.sysid, world=args.world, extra_autopilot_args=controller_args(args), plant=args.plant,
+        ccpm=args.ccpm,
     )  # fmt: skip
     try:
         serve(opts)
@@ -529,6 +542,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.set_defaults(func=_run)
 
     u = sub.add_parser("up", help="plant + autopilot, disarmed on the ground, serving ground stations")
+    u.add_argument("--ccpm", nargs="?", const="swashplate/xcell60-h3-120.toml", default=None,
+                   metavar="SWASHPLATE", help="CCPM servo channels through this swashplate (both processes)")
     u.add_argument("--mode", choices=("lockstep", "realtime"), default="realtime")
     u.add_argument("--rate-hz", type=arg.control_rate_hz, default=100.0)
     u.add_argument("--scenario", default="paper", help="airframe and gains")

@@ -142,6 +142,7 @@ class UpOptions:
     world: str | None = None
     extra_autopilot_args: tuple[str, ...] = ()  # e.g. the controller: ("--controller", "pid")
     plant: str = "paper"  # the plant model (--plant)
+    ccpm: str | None = None  # a swashplate file: CCPM servo channels (heli_common.servo_map)
 
 
 def up_commands(opts: UpOptions) -> list[tuple[str, list[str]]]:
@@ -154,7 +155,7 @@ def up_commands(opts: UpOptions) -> list[tuple[str, list[str]]]:
         "--port", str(pp), "--autopilot-port", str(ap), "--timeout-s", "2",
     ] + (["--hold-until-armed"] if opts.in_air else ["--on-ground"]) + (
         ["--world", opts.world] if opts.world else []
-    ) + ["--plant", opts.plant]  # fmt: skip
+    ) + ["--plant", opts.plant] + ccpm_args(opts.ccpm)  # fmt: skip
     autopilot = _cmd("autopilot.cli") + [
         "--mode", opts.mode, "--rate-hz", str(opts.rate_hz), "--scenario", opts.scenario,
         "--port", str(ap), "--plant-port", str(pp),
@@ -164,8 +165,13 @@ def up_commands(opts: UpOptions) -> list[tuple[str, list[str]]]:
     ] + (["--world", opts.world] if opts.world else []) + (
         ["--signing-key", opts.signing_key] if opts.signing_key else []) + (
         ["--out", opts.out] if opts.out else []
-    ) + list(opts.extra_autopilot_args)  # fmt: skip
+    ) + list(opts.extra_autopilot_args) + ccpm_args(opts.ccpm)  # fmt: skip
     return [("plant", plant), ("autopilot", autopilot)]
+
+
+def ccpm_args(ccpm: str | None) -> list[str]:
+    """Both processes get the same swashplate (the autopilot mixes, the plant reads back)."""
+    return [] if ccpm is None else ["--ccpm", ccpm]
 
 
 def serve(opts: UpOptions, stop_after_s: float | None = None) -> None:

@@ -43,6 +43,7 @@ from heli_common.mavlink.mission_items import MissionItem
 from heli_common.mavlink.sim_protocol import StateSample
 from heli_common.mavlink.udp import LOOPBACK, Address, MavlinkUdp, Message, mavlink2
 from heli_common.ratelog import RateLimitedLog
+from heli_common.servo_map import ServoMap
 from heli_common.state import EULER, POS, VEL, FloatArray
 
 log = logging.getLogger("autopilot.gcs")
@@ -235,11 +236,14 @@ class GcsService:
         limits: FloatArray,
         flight_limits: FlightLimits | None = None,
         manager: FlightManager | None = None,
+        servo_channels: ServoMap | None = None,
     ) -> None:
         self.cfg = cfg
         self.params = params
         self.apply_params = apply_params
         self.limits = limits
+        # SERVO_OUTPUT_RAW's channels: the blade pitches (None), or the CCPM servos
+        self.servo_channels: FloatArray | ServoMap = limits if servo_channels is None else servo_channels
         self.flight_limits = flight_limits or FlightLimits()
         self.manager: FlightManager | None = None  # the runner's, set by attach()
         self.links = [
@@ -467,7 +471,7 @@ class GcsService:
                 return None
             return m2.MAVLink_raw_rpm_message(0, sample.rotor[2] * 60.0 / (2.0 * math.pi))
         if msg_id == m2.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW:
-            return telemetry.servo_output(t_us, self._u, self.limits)
+            return telemetry.servo_output(t_us, self._u, self.servo_channels)
         if msg_id == m2.MAVLINK_MSG_ID_MISSION_CURRENT:
             # None: the server's default, NOT_STARTED or NO_MISSION
             state = MISSION_STATE[mgr.mission_state()] if mgr else None

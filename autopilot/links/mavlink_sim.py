@@ -127,10 +127,12 @@ class Measurements:
 
 
 class SimLink(Closing):
-    def __init__(self, local: Address, plant: Address, limits: FloatArray, home: GeoPoint = HOME) -> None:
+    def __init__(
+        self, local: Address, plant: Address, limits: FloatArray | servo_map.ServoMap, home: GeoPoint = HOME
+    ) -> None:
         self.udp = MavlinkUdp(local, plant, system_id=1, component_id=1, accept_system=1)
         self.codec = SimCodec(system_id=1, component_id=1)
-        self.limits = limits
+        self.servos = servo_map.as_map(limits)  # one channel per pitch, or CCPM servos
         self.assembler = StateAssembler()
         # the world's truth of the latest state (see StateSample), by its time stamp
         self._air: tuple[int, tuple[float, float, float]] | None = None
@@ -166,7 +168,7 @@ class SimLink(Closing):
 
     def send_pitches(self, t_us: int, pitches_rad: FloatArray, armed: bool) -> None:
         controls = [0.0] * 16
-        controls[:4] = servo_map.to_normalized(pitches_rad, self.limits).tolist()
+        controls[:4] = self.servos.to_normalized(pitches_rad).tolist()
         mode = MAV_MODE_FLAG_SAFETY_ARMED if armed else 0
         self.udp.send_bytes(self.codec.encode_actuators(t_us, controls, mode))
         self.udp.stats.tx_messages += 1

@@ -225,22 +225,27 @@ class StateAssembler:
 MAV_MODE_FLAG_SAFETY_ARMED = int(mavlink2.MAV_MODE_FLAG_SAFETY_ARMED)
 
 
-def command_message(t_us: int, pitches_rad: FloatArray, limits: FloatArray, armed: bool) -> Message:
+def command_message(
+    t_us: int, pitches_rad: FloatArray, limits: FloatArray | servo_map.ServoMap, armed: bool
+) -> Message:
     controls = [0.0] * 16
-    controls[:N_PITCH] = [float(v) for v in servo_map.to_normalized(pitches_rad, limits)]
+    controls[:N_PITCH] = [float(v) for v in servo_map.as_map(limits).to_normalized(pitches_rad)]
     mode = MAV_MODE_FLAG_SAFETY_ARMED if armed else 0
     return mavlink2.MAVLink_hil_actuator_controls_message(t_us, controls, mode, 0)
 
 
-def decode_command(message: SimMessage, limits: FloatArray) -> tuple[int, FloatArray] | None:
-    """(time_usec, pitches [rad]) or None if it is not a usable command (NaN, |n| > 1)."""
+def decode_command(
+    message: SimMessage, limits: FloatArray | servo_map.ServoMap
+) -> tuple[int, FloatArray] | None:
+    """(time_usec, pitches [rad]) or None if it is not a usable command (NaN, |n| > 1);
+    ``limits``: the airframe's (one channel per pitch) or a servo map (CCPM)."""
     if message.get_type() != "HIL_ACTUATOR_CONTROLS":
         return None
     msg: Any = message
     n = np.array(msg.controls[:N_PITCH], dtype=float)
     if not np.all(np.isfinite(n)) or np.any(np.abs(n) > 1.0 + 1e-6):
         return None
-    return int(msg.time_usec), servo_map.from_normalized(n, limits)
+    return int(msg.time_usec), servo_map.as_map(limits).from_normalized(n)
 
 
 def period_us(rate_hz: float) -> int:
