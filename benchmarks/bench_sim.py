@@ -245,6 +245,8 @@ def bench_sensors() -> list[Row]:
             rtf, "x", *above(rtf, 1000.0)),
         Row("  the same on the attitude source and per-axis filters (ideal-ahrs)", sc.run.duration_s / t_ahrs,
             "x"),
+        Row("  cost per tick of the navigation filter over the per-axis filters",
+            (t_all - t_ahrs) / n_steps * 1e6, "us"),
         Row("  floor: the same flight in the ideal world, per tick", ideal / n_steps * 1e6, "us"),
     ]  # fmt: skip
     for name in ("gps-typical", "imu-consumer", "noisy"):

@@ -1,22 +1,28 @@
 """The inertial navigation filter: an error-state extended Kalman filter, compiled.
 
 Nominal state: the attitude quaternion (body FLU to earth NWU), velocity and position in
-earth NWU, the gyro and accelerometer biases (body FLU) and a GPS position wander (earth
-NWU, first-order Gauss-Markov). The error state (18) is the local attitude error
-``d_theta`` (``R_true = R Exp(d_theta)``), and the additive errors of the rest (Sola 2017,
-"Quaternion kinematics for the error-state Kalman filter", s. 5 and 7, local angular
-error). The IMU is mechanised every tick; GPS position and velocity, barometric height and
-magnetometer heading are fused at their time of validity, late measurements by re-running
-the filter from a buffer of past ticks (the replay of :mod:`autopilot.estimation.kf`).
-docs/estimator.md, "The navigation filter", derives the Jacobians; tests/test_ins.py checks
-them against finite differences.
+earth NWU, the gyro and accelerometer biases (body FLU), a GPS position wander (earth NWU,
+first-order Gauss-Markov) and the magnetometer's offset (body FLU). The error state (21)
+is the local attitude error ``d_theta`` (``R_true = R Exp(d_theta)``), and the additive
+errors of the rest (Sola 2017, "Quaternion kinematics for the error-state Kalman filter",
+s. 5 and 7, local angular error). The IMU is mechanised every tick; GPS position and
+velocity, barometric height and the magnetometer's field are fused at their time of
+validity: a late GPS fix when it arrives, through the cross-covariance of the present
+state with the one it measures, carried from its time (:func:`_fuse_late_gps`); what that
+cannot carry by re-running the filter from a buffer of past ticks (the replay of
+:mod:`autopilot.estimation.kf`).
+docs/estimator.md, "The navigation filter", derives the Jacobians and the late fusion;
+tests/test_ins.py checks the Jacobians against finite differences, tests/test_ins_late_fixes.py
+the late fusion against fixes on time.
 
 Layouts (all ``float64``; only names index them):
 
 * ``params`` (``N_PARAMS``, ``K_*``) from :func:`make_params`;
-* ``state`` (:func:`state_size`): the filter (``E_*``) then a ring buffer of ``n_buf``
-  records (``R_*``), each one tick interval: the filter at its start, the IMU sample over
-  it, and the GPS fix, baro height and magnetometer sample valid inside it;
+* ``state`` (:func:`state_size`): the filter (``E_*``, with the kernels' scratch: no array
+  is made in a tick) then a ring buffer of ``n_buf`` records (``R_*``), each one tick
+  interval: the filter at its start, the IMU sample over it, the GPS fix, baro height and
+  magnetometer sample valid inside it, and its F and the scalar updates at its end (what
+  a late fix is carried through);
 * the error state ``ERR`` (``D_*``) orders the covariance, ``NOMINAL`` (``N_*``) the
   nominal state.
 
@@ -33,10 +39,12 @@ from scipy.stats import chi2
 from autopilot.estimation.config import EstimatorConfig
 from autopilot.estimation.log import (
     L_ACCEL_BIAS,
+    L_ATT_ERR,
     L_BIAS,
     L_DIVERGED,
     L_GPS_STATUS,
     L_GYRO_BIAS,
+    L_GYRO_BIAS_ERR,
     L_INNOV,
     L_MAG_INNOV,
     L_MAG_NIS,
@@ -53,8 +61,7 @@ from heli_common.jit import njit
 from heli_common.kinematics import (
     euler_from_rot,
     quat_from_euler,
-    quat_from_rotvec,
-    quat_mul,
+    quat_from_rotvec,  # noqa: F401 (the tests take Exp from here, as the filter's own)
     rot_body_to_earth,
     rot_from_quat,
     wrap_pi,
@@ -97,6 +104,7 @@ D_BM = ERR.offset("mag_bias")
 N_ERR = ERR.size
 N_NAV = D_GW  # the navigation states (attitude to accelerometer bias): what NEES is taken on
 N_COV = N_ERR * N_ERR
+COV_TRI = N_ERR * (N_ERR + 1) // 2  # its upper triangle: P is kept exactly symmetric
 
 # --- the nominal state
 NOMINAL = Layout(
@@ -173,6 +181,47 @@ K_N_BUF = PARAMS.offset("n_buf")
 K_T_TOL = PARAMS.offset("t_tol")
 N_PARAMS = PARAMS.size
 
+# --- the blocks of F (error_transition) a propagation applies, in its scratch (F_*)
+F_BLOCKS = Layout(
+    "error transition blocks",
+    ("rw", 9),  # R{w dt}, row-major
+    ("m_va", 9),  # dv/d d_theta = -R_mid [a]x Exp(w dt / 2)^T dt
+    ("r_dt", 9),  # -dv/d b_a = R_mid dt
+    ("m_vg", 9),  # dv/d b_g = R_mid [a]x dt^2 / 2
+    ("decay", 1),  # exp(-dt / tau) of the GPS wander
+)
+F_RW = F_BLOCKS.offset("rw")
+F_M_VA = F_BLOCKS.offset("m_va")
+F_R_DT = F_BLOCKS.offset("r_dt")
+F_M_VG = F_BLOCKS.offset("m_vg")
+F_DECAY = F_BLOCKS.offset("decay")
+FB_SIZE = F_BLOCKS.size
+MAX_Y = 6  # the most components a measurement has (a GPS fix with velocity)
+
+# --- one scalar update as a record keeps it (U_*), for a late fix's cross-covariance:
+# h = (h_att at the attitude error) + (a 1 at h_unit), P h before it, S and the innovation
+UPDATE = Layout(
+    "logged scalar update",
+    ("ph", N_ERR),
+    ("h_att", 3),
+    ("h_unit", 1),  # the error-state index of h's unit entry
+    ("s", 1),
+    ("nu", 1),
+)
+U_PH = UPDATE.offset("ph")
+U_H_ATT = UPDATE.offset("h_att")
+U_H_UNIT = UPDATE.offset("h_unit")
+U_S = UPDATE.offset("s")
+U_NU = UPDATE.offset("nu")
+UPD_SIZE = UPDATE.size
+MAX_UPD = 4  # a magnetometer sample's three components and a baro height in one tick
+# the row length of a late fix's cross-covariance: its (up to) 6 columns and 2 of zeros,
+# whole vector registers with no remainder to run apart
+XC_W = 8
+# a validity time this close to a tick is taken as the tick (the sim link's microseconds,
+# the float round-off of a lag): no sliver of an interval to propagate over
+T_SNAP_S = 1e-6
+
 # --- the filter (E_*); the ring buffer follows at E_HIST
 FILTER = Layout(
     "navigation filter",
@@ -217,6 +266,28 @@ FILTER = Layout(
     ("diverged", 1),  # 1 once diverged (latched until a reset)
     ("head", 1),
     ("count", 1),
+    # scratch of the kernels (no array is made in a tick; a late fix makes its own, five a
+    # second): F's blocks of the interval being propagated, and the vectors and small
+    # matrices of an update
+    ("f_blocks", FB_SIZE),
+    ("ph", MAX_Y * N_ERR),  # P h of each scalar update of a measurement (P before it)
+    ("g", MAX_Y * N_ERR),  # P h / sqrt(S) of each: P loses g g^T
+    ("unit", MAX_Y),  # where each row of H has its 1 besides the attitude (-1: elsewhere too)
+    ("dx", N_ERR),  # the error mean of an update
+    ("hm", MAX_Y * N_ERR),  # the rows of H, row-major
+    ("y", MAX_Y),  # the innovations of one measurement
+    ("r", MAX_Y),  # their (white) variances
+    ("s_upd", MAX_Y),  # S of each scalar update
+    ("s_diag", MAX_Y),  # the diagonal of the measurement's S = H P H^T + R
+    ("nu", MAX_Y),  # the innovation of each, against the state the ones before left
+    ("s", MAX_Y * MAX_Y),  # a late fix's S = Var(H x_s) + R, row-major, for its gate
+    ("chol", (N_NAV + 1) * (N_NAV + 1)),  # the factor of a NIS, the elimination of a NEES
+    ("chol_z", N_NAV),
+    ("baro_in", 3),  # the baro height as the 3-vector a measurement is handed over in
+    ("err", N_ERR),  # the true error, where a simulation knows the truth (nav_error)
+    ("cov_s", N_COV),  # a late fix's P at its validity time, out of its record
+    ("imu_in", 6),  # an IMU sample handed over as arrays (_propagate)
+    ("log_rec", 1),  # the record the scalar updates are logged into (-1: none)
 )
 E_T = FILTER.offset("t")
 E_NOM = FILTER.offset("nom")
@@ -259,6 +330,25 @@ E_MAG_NIS = FILTER.offset("mag_nis")
 E_DIVERGED = FILTER.offset("diverged")
 E_HEAD = FILTER.offset("head")
 E_COUNT = FILTER.offset("count")
+E_F_BLOCKS = FILTER.offset("f_blocks")
+E_PH = FILTER.offset("ph")
+E_G = FILTER.offset("g")
+E_UNIT = FILTER.offset("unit")
+E_R = FILTER.offset("r")
+E_S_UPD = FILTER.offset("s_upd")
+E_S_DIAG = FILTER.offset("s_diag")
+E_NU = FILTER.offset("nu")
+E_DX = FILTER.offset("dx")
+E_HM = FILTER.offset("hm")
+E_Y = FILTER.offset("y")
+E_S = FILTER.offset("s")
+E_CHOL = FILTER.offset("chol")
+E_CHOL_Z = FILTER.offset("chol_z")
+E_BARO_IN = FILTER.offset("baro_in")
+E_ERR = FILTER.offset("err")
+E_COV_S = FILTER.offset("cov_s")
+E_IMU_IN = FILTER.offset("imu_in")
+E_LOG_REC = FILTER.offset("log_rec")
 E_HIST = FILTER.end
 N_FILTER = FILTER.size
 
@@ -270,7 +360,7 @@ RECORD = Layout(
     ("gyro", 3),  # the IMU sample over the interval
     ("accel", 3),
     ("nom0", N_NOM),  # the filter at t0
-    ("cov0", N_COV),
+    ("cov0", COV_TRI),  # its upper triangle, row by row
     ("gps_flag", 1),  # M_* below
     ("gps_tau", 1),  # validity time - t0
     ("gps_pos", 3),
@@ -281,6 +371,12 @@ RECORD = Layout(
     ("mag_flag", 1),
     ("mag_tau", 1),
     ("mag_field", 3),  # body FLU [gauss], as measured
+    # what a late GPS fix needs to be fused now at its validity time (_fuse_late_gps)
+    ("xc_ok", 1),  # 1: one propagation over the interval, then the logged updates only
+    ("stale", 1),  # 1: the start state misses a late fix fused after it (no replay from here)
+    ("fb", FB_SIZE),  # F of the propagation
+    ("n_upd", 1),
+    ("upd", MAX_UPD * UPD_SIZE),  # the scalar updates at its end, in order
 )
 R_T0 = RECORD.offset("t0")
 R_DT = RECORD.offset("dt")
@@ -298,6 +394,11 @@ R_BARO_Z = RECORD.offset("baro_z")
 R_MAG_FLAG = RECORD.offset("mag_flag")
 R_MAG_TAU = RECORD.offset("mag_tau")
 R_MAG_FIELD = RECORD.offset("mag_field")
+R_XC_OK = RECORD.offset("xc_ok")
+R_STALE = RECORD.offset("stale")
+R_FB = RECORD.offset("fb")
+R_N_UPD = RECORD.offset("n_upd")
+R_UPD = RECORD.offset("upd")
 N_REC = RECORD.size
 
 # measurement flags in a record
@@ -368,11 +469,16 @@ def make_params(
 
 
 # ------------------------------------------------------------------ small pieces
+#
+# The kernels index the one state array with the layouts' offsets and make no views of it:
+# numba counts the references of every slice it makes (two atomic operations a view, a
+# few nanoseconds each, dozens a tick), and a view of the array a loop writes keeps the
+# compiler from running the loop wide (it cannot tell the two apart).
 
 
 @njit
-def _finite3(v: FloatArray) -> bool:
-    return math.isfinite(v[0]) and math.isfinite(v[1]) and math.isfinite(v[2])
+def _finite3(v: FloatArray, at: int = 0) -> bool:
+    return math.isfinite(v[at]) and math.isfinite(v[at + 1]) and math.isfinite(v[at + 2])
 
 
 @njit
@@ -381,11 +487,68 @@ def _cov(st: FloatArray) -> FloatArray:
     return st[E_COV : E_COV + N_COV].reshape((N_ERR, N_ERR))
 
 
+_MAX_OFFSET = 1 << 40
+
+
+@njit
+def _nn(i: int) -> int:
+    """An offset into the state, with a range the compiler can see is not negative: an
+    index it cannot prove so (a record's) gets a wrap-around check on every element, which
+    keeps a loop from running wide (a covariance copies five times slower)."""
+    return min(max(i, 0), _MAX_OFFSET)
+
+
+@njit
+def _copy(st: FloatArray, dst: int, src: int, n: int) -> None:
+    """``st[dst : dst + n] = st[src : src + n]`` for blocks that do not overlap, without
+    the temporary a slice assignment within one array makes."""
+    d, s = _nn(dst), _nn(src)
+    for i in range(_nn(n)):
+        st[d + i] = st[s + i]
+
+
+@njit
+def _zero(st: FloatArray, at: int, n: int) -> None:
+    for i in range(n):
+        st[at + i] = 0.0
+
+
+@njit
+def _pack_cov(st: FloatArray, dst: int) -> None:
+    """P's upper triangle, row by row, to ``st[dst:]`` (``COV_TRI``)."""
+    d = _nn(dst)
+    for i in range(N_ERR):
+        row = E_COV + i * N_ERR
+        for j in range(i, N_ERR):
+            st[d] = st[row + j]
+            d += 1
+
+
+@njit
+def _unpack_cov(st: FloatArray, src: int, dst: int = E_COV) -> None:
+    """The symmetric matrix whose upper triangle :func:`_pack_cov` left at ``st[src:]``
+    into ``st[dst:]`` (P by default)."""
+    k, dst = _nn(src), _nn(dst)
+    for i in range(N_ERR):
+        for j in range(i, N_ERR):
+            v = st[k]
+            st[dst + i * N_ERR + j] = v
+            st[dst + j * N_ERR + i] = v
+            k += 1
+
+
 @njit
 def _rec(params: FloatArray, st: FloatArray, age: int) -> int:
     """Offset of the record ``age`` ticks before the newest (0: newest)."""
     n = int(params[K_N_BUF])
     return E_HIST + ((int(st[E_HEAD]) - age) % n) * N_REC
+
+
+@njit
+def _wide(st: FloatArray, n: int) -> int:
+    """``n`` as a loop bound the compiler cannot see through (the state array is longer): a
+    constant one has the loop unrolled into scalar code before it can run wide."""
+    return min(n, st.size)
 
 
 @njit
@@ -404,31 +567,88 @@ def mag_heading(field_flu: FloatArray, phi: float, theta: float, declination: fl
 # ------------------------------------------------------------------ prediction
 
 
+Vec3 = tuple[float, float, float]
+Quat = tuple[float, float, float, float]
+Rot = tuple[float, float, float, float, float, float, float, float, float]
+
+
 @njit
-def _velocity_blocks(
-    q: FloatArray, w: FloatArray, a: FloatArray, dt: float
-) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """The velocity rows of F for the mechanisation ``v += R Exp(w dt / 2) a dt``:
-    ``dv/d d_theta = -R_mid [a]x Exp(w dt / 2)^T dt`` (R Exp(d) Exp(h) = R Exp(h) Exp(Exp(h)^T d))
-    ``dv/d b_a = -R_mid dt``, and through the half-tick rotation ``dv/d b_g =
-    R_mid [a]x dt^2 / 2``, with ``R_mid = R Exp(w dt / 2)``."""
-    half = quat_from_rotvec(0.5 * w[0] * dt, 0.5 * w[1] * dt, 0.5 * w[2] * dt)
-    rh = rot_from_quat(half)
-    r_mid = rot_from_quat(quat_mul(q, half))
-    ra = np.empty((3, 3))  # R_mid [a]x: column j is R_mid (e_j x a)
+def _qexp(vx: float, vy: float, vz: float) -> Quat:
+    """:func:`~heli_common.kinematics.quat_from_rotvec` on the stack (the same arithmetic,
+    no array: the kernels run it several times a tick)."""
+    angle = math.sqrt(vx * vx + vy * vy + vz * vz)
+    if angle < 1e-8:
+        w, s = 1.0 - angle * angle / 8.0, 0.5 - angle * angle / 48.0
+    else:
+        w, s = math.cos(0.5 * angle), math.sin(0.5 * angle) / angle
+    return w, s * vx, s * vy, s * vz
+
+
+@njit
+def _qmul(a: Quat, b: Quat) -> Quat:
+    """:func:`~heli_common.kinematics.quat_mul` on the stack."""
+    return (a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3],
+            a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2],
+            a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1],
+            a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0])  # fmt: skip
+
+
+@njit
+def _qrot(q: Quat) -> Rot:
+    """:func:`~heli_common.kinematics.rot_from_quat` on the stack, row-major."""
+    w, x, y, z = q
+    return (1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y),
+            2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x),
+            2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y))  # fmt: skip
+
+
+@njit
+def _rot_euler(phi: float, theta: float, psi: float) -> Rot:
+    """:func:`~heli_common.kinematics.rot_body_to_earth` on the stack, row-major."""
+    cph, sph = math.cos(phi), math.sin(phi)
+    cth, sth = math.cos(theta), math.sin(theta)
+    cps, sps = math.cos(psi), math.sin(psi)
+    return (cth * cps, sph * sth * cps - cph * sps, cph * sth * cps + sph * sps,
+            cth * sps, sph * sth * sps + cph * cps, cph * sth * sps - sph * cps,
+            -sth, sph * cth, cph * cth)  # fmt: skip
+
+
+@njit
+def _nom_quat(st: FloatArray) -> Quat:
+    q = E_NOM + N_Q
+    return st[q], st[q + 1], st[q + 2], st[q + 3]
+
+
+@njit
+def _transition_blocks(q: Quat, w: Vec3, a: Vec3, dt: float, fb: FloatArray, at: int) -> tuple[Quat, Vec3]:
+    """The blocks of F (:data:`F_BLOCKS`, at ``fb[at:]``; not the decay) for the
+    mechanisation ``v += R Exp(w dt / 2) a dt``: ``dv/d d_theta = -R_mid [a]x
+    Exp(w dt / 2)^T dt`` (R Exp(d) Exp(h) = R Exp(h) Exp(Exp(h)^T d)), ``dv/d b_a = -R_mid
+    dt``, and through the half-tick rotation ``dv/d b_g = R_mid [a]x dt^2 / 2``, with
+    ``R_mid = R Exp(w dt / 2)``; and ``R{w dt}``. Returns the mechanisation's rotations:
+    ``Exp(w dt)``, the attitude's increment, and ``R_mid a``, the specific force in earth
+    axes."""
+    dq = _qexp(w[0] * dt, w[1] * dt, w[2] * dt)
+    rw = _qrot(dq)
+    half = _qexp(0.5 * w[0] * dt, 0.5 * w[1] * dt, 0.5 * w[2] * dt)
+    rh = _qrot(half)
+    rm = _qrot(_qmul(q, half))
     for i in range(3):
-        ra[i, 0] = r_mid[i, 1] * a[2] - r_mid[i, 2] * a[1]
-        ra[i, 1] = r_mid[i, 2] * a[0] - r_mid[i, 0] * a[2]
-        ra[i, 2] = r_mid[i, 0] * a[1] - r_mid[i, 1] * a[0]
-    m_va = np.empty((3, 3))
-    r_dt = np.empty((3, 3))
-    m_vg = np.empty((3, 3))
-    for i in range(3):
+        m0, m1, m2 = rm[3 * i], rm[3 * i + 1], rm[3 * i + 2]
+        # R_mid [a]x: column j is R_mid (e_j x a)
+        ra0 = m1 * a[2] - m2 * a[1]
+        ra1 = m2 * a[0] - m0 * a[2]
+        ra2 = m0 * a[1] - m1 * a[0]
         for j in range(3):
-            m_va[i, j] = -(ra[i, 0] * rh[j, 0] + ra[i, 1] * rh[j, 1] + ra[i, 2] * rh[j, 2]) * dt
-            r_dt[i, j] = r_mid[i, j] * dt
-            m_vg[i, j] = 0.5 * dt * dt * ra[i, j]
-    return m_va, r_dt, m_vg
+            fb[at + F_RW + 3 * i + j] = rw[3 * i + j]
+            fb[at + F_M_VA + 3 * i + j] = -(ra0 * rh[3 * j] + ra1 * rh[3 * j + 1] + ra2 * rh[3 * j + 2]) * dt
+            fb[at + F_R_DT + 3 * i + j] = rm[3 * i + j] * dt
+        fb[at + F_M_VG + 3 * i] = 0.5 * dt * dt * ra0
+        fb[at + F_M_VG + 3 * i + 1] = 0.5 * dt * dt * ra1
+        fb[at + F_M_VG + 3 * i + 2] = 0.5 * dt * dt * ra2
+    ra = (rm[0] * a[0] + rm[1] * a[1] + rm[2] * a[2], rm[3] * a[0] + rm[4] * a[1] + rm[5] * a[2],
+          rm[6] * a[0] + rm[7] * a[1] + rm[8] * a[2])  # fmt: skip
+    return dq, ra
 
 
 @njit
@@ -437,24 +657,21 @@ def error_transition(
 ) -> FloatArray:
     """The error-state transition matrix ``F`` over ``dt`` (Sola 2017 eq. 269, local angle
     error) with the IMU sample held: dense, for the tests and the docs; the kernel applies
-    the same blocks without forming it."""
+    the same blocks without forming it (:func:`_apply_f`)."""
     f = np.eye(N_ERR)
-    w = np.empty(3)
-    a = np.empty(3)
-    for i in range(3):
-        w[i] = gyro[i] - nom[N_BG + i]
-        a[i] = accel[i] - nom[N_BA + i]
-    rw = rot_from_quat(quat_from_rotvec(w[0] * dt, w[1] * dt, w[2] * dt))
-    m_va, r_dt, m_vg = _velocity_blocks(q, w, a, dt)
+    w = (gyro[0] - nom[N_BG], gyro[1] - nom[N_BG + 1], gyro[2] - nom[N_BG + 2])
+    a = (accel[0] - nom[N_BA], accel[1] - nom[N_BA + 1], accel[2] - nom[N_BA + 2])
+    fb = np.empty(FB_SIZE)
+    _transition_blocks((q[0], q[1], q[2], q[3]), w, a, dt, fb, 0)
     for i in range(3):
         for j in range(3):
-            f[D_ATT + i, D_ATT + j] = rw[j, i]  # R{w dt}^T
-            f[D_VEL + i, D_ATT + j] = m_va[i, j]
-            f[D_VEL + i, D_BA + j] = -r_dt[i, j]
-            f[D_VEL + i, D_BG + j] = m_vg[i, j]
-            f[D_POS + i, D_BG + j] = 0.5 * dt * m_vg[i, j]
-            f[D_POS + i, D_ATT + j] = 0.5 * dt * m_va[i, j]
-            f[D_POS + i, D_BA + j] = -0.5 * dt * r_dt[i, j]
+            f[D_ATT + i, D_ATT + j] = fb[F_RW + 3 * j + i]  # R{w dt}^T
+            f[D_VEL + i, D_ATT + j] = fb[F_M_VA + 3 * i + j]
+            f[D_VEL + i, D_BA + j] = -fb[F_R_DT + 3 * i + j]
+            f[D_VEL + i, D_BG + j] = fb[F_M_VG + 3 * i + j]
+            f[D_POS + i, D_BG + j] = 0.5 * dt * fb[F_M_VG + 3 * i + j]
+            f[D_POS + i, D_ATT + j] = 0.5 * dt * fb[F_M_VA + 3 * i + j]
+            f[D_POS + i, D_BA + j] = -0.5 * dt * fb[F_R_DT + 3 * i + j]
         f[D_ATT + i, D_BG + i] = -dt
         f[D_POS + i, D_VEL + i] = dt
         f[D_GW + i, D_GW + i] = math.exp(-dt / tau_w)
@@ -462,181 +679,380 @@ def error_transition(
 
 
 @njit
-def _apply_f(src: FloatArray, dst: FloatArray, rw: FloatArray, m_va: FloatArray, r_dt: FloatArray,
-             m_vg: FloatArray, dt: float, decay: float) -> None:  # fmt: skip
-    """``dst = F src`` for the block structure of :func:`error_transition` (``rw`` =
-    R{w dt}, ``m_va`` = -R [a]x dt, ``r_dt`` = R dt): about 30 flops a column instead of
-    the dense product's 18 x 18."""
-    for j in range(N_ERR):
+def _block(fb: FloatArray, at: int) -> tuple[float, float, float, float, float, float, float, float, float]:
+    """The 3 x 3 block at ``fb[at:]`` (row-major) as values: held in registers, not re-read
+    from the array the loop writes."""
+    return (fb[at], fb[at + 1], fb[at + 2], fb[at + 3], fb[at + 4], fb[at + 5], fb[at + 6], fb[at + 7],
+            fb[at + 8])  # fmt: skip
+
+
+@njit
+def _apply_f(st: FloatArray, x: int, n: int, ncols: int, fbs: FloatArray, fb: int, dt: float) -> None:
+    """``X <- F X`` in place for the ``N_ERR`` x ``ncols`` matrix ``X`` at ``st[x:]`` (row
+    ``r`` at ``x + r n``): P itself, or a late fix's cross-covariance. F is the blocks of
+    :func:`error_transition` at ``fbs[fb:]`` (``rw`` = R{w dt}, ``m_va`` = -R [a]x dt,
+    ``r_dt`` = R dt): about 90 flops a column instead of the dense product's 21 x 21. The
+    biases and the magnetometer offset are F's identity: their rows stay. Each column on
+    its own, the same operations for every column: the compiler runs several at once."""
+    x, n, ncols, fb = _nn(x), _nn(n), _nn(ncols), _nn(fb)
+    rw0, rw1, rw2, rw3, rw4, rw5, rw6, rw7, rw8 = _block(fbs, fb + F_RW)
+    va0, va1, va2, va3, va4, va5, va6, va7, va8 = _block(fbs, fb + F_M_VA)
+    rd0, rd1, rd2, rd3, rd4, rd5, rd6, rd7, rd8 = _block(fbs, fb + F_R_DT)
+    vg0, vg1, vg2, vg3, vg4, vg5, vg6, vg7, vg8 = _block(fbs, fb + F_M_VG)
+    hdt = 0.5 * dt
+    decay = fbs[fb + F_DECAY]
+    att, vel, pos = x + D_ATT * n, x + D_VEL * n, x + D_POS * n
+    bg, ba, gw = x + D_BG * n, x + D_BA * n, x + D_GW * n
+    for j in range(ncols):
+        a0, a1, a2 = st[att + j], st[att + n + j], st[att + 2 * n + j]
+        g0, g1, g2 = st[bg + j], st[bg + n + j], st[bg + 2 * n + j]
+        b0, b1, b2 = st[ba + j], st[ba + n + j], st[ba + 2 * n + j]
+        inc0 = (va0 * a0 + va1 * a1 + va2 * a2 - rd0 * b0 - rd1 * b1 - rd2 * b2
+                + vg0 * g0 + vg1 * g1 + vg2 * g2)  # fmt: skip
+        inc1 = (va3 * a0 + va4 * a1 + va5 * a2 - rd3 * b0 - rd4 * b1 - rd5 * b2
+                + vg3 * g0 + vg4 * g1 + vg5 * g2)  # fmt: skip
+        inc2 = (va6 * a0 + va7 * a1 + va8 * a2 - rd6 * b0 - rd7 * b1 - rd8 * b2
+                + vg6 * g0 + vg7 * g1 + vg8 * g2)  # fmt: skip
+        v0, v1, v2 = st[vel + j], st[vel + n + j], st[vel + 2 * n + j]
+        st[vel + j] = v0 + inc0
+        st[vel + n + j] = v1 + inc1
+        st[vel + 2 * n + j] = v2 + inc2
+        # the position takes half the tick's velocity change (p += v dt + a dt^2 / 2)
+        st[pos + j] = st[pos + j] + dt * v0 + hdt * inc0
+        st[pos + n + j] = st[pos + n + j] + dt * v1 + hdt * inc1
+        st[pos + 2 * n + j] = st[pos + 2 * n + j] + dt * v2 + hdt * inc2
+        st[gw + j] *= decay
+        st[gw + n + j] *= decay
+        st[gw + 2 * n + j] *= decay
+        # R{w dt}^T
+        st[att + j] = rw0 * a0 + rw3 * a1 + rw6 * a2 - dt * g0
+        st[att + n + j] = rw1 * a0 + rw4 * a1 + rw7 * a2 - dt * g1
+        st[att + 2 * n + j] = rw2 * a0 + rw5 * a1 + rw8 * a2 - dt * g2
+
+
+# the error-state blocks F changes (the others it holds: F's identity there)
+_CHANGED = (D_ATT, D_VEL, D_POS, D_GW)
+_HELD = (D_BG, D_BA, D_BM)
+
+
+@njit
+def _f_rows(st: FloatArray, fbs: FloatArray, fb: int, dt: float) -> None:
+    """``P <- A F^T`` in place, from ``A = F P`` (:func:`_apply_f` on P), F's blocks at
+    ``fbs[fb:]``; the result is the symmetric ``F P F^T``, so only what F changes is
+    computed: in a row of a block F changes, the columns of those blocks (F applied to
+    the row, as to a column in :func:`_apply_f`), symmetrised; the rows of the held blocks
+    take their columns from the rows of the changed ones (``(F P F^T)[u, c] = (F P)[c,
+    u]``). For a symmetric P this is bit for bit the average of ``F (F P)^T`` with its
+    transpose, at a third of the work."""
+    fb = _nn(fb)
+    rw0, rw1, rw2, rw3, rw4, rw5, rw6, rw7, rw8 = _block(fbs, fb + F_RW)
+    va0, va1, va2, va3, va4, va5, va6, va7, va8 = _block(fbs, fb + F_M_VA)
+    rd0, rd1, rd2, rd3, rd4, rd5, rd6, rd7, rd8 = _block(fbs, fb + F_R_DT)
+    vg0, vg1, vg2, vg3, vg4, vg5, vg6, vg7, vg8 = _block(fbs, fb + F_M_VG)
+    hdt = 0.5 * dt
+    decay = fbs[fb + F_DECAY]
+    for blk in _CHANGED:
         for i in range(3):
-            dst[D_ATT + i, j] = (rw[0, i] * src[D_ATT, j] + rw[1, i] * src[D_ATT + 1, j]
-                                 + rw[2, i] * src[D_ATT + 2, j] - dt * src[D_BG + i, j])  # fmt: skip
-            inc = (m_va[i, 0] * src[D_ATT, j] + m_va[i, 1] * src[D_ATT + 1, j]
-                   + m_va[i, 2] * src[D_ATT + 2, j]
-                   - r_dt[i, 0] * src[D_BA, j] - r_dt[i, 1] * src[D_BA + 1, j]
-                   - r_dt[i, 2] * src[D_BA + 2, j]
-                   + m_vg[i, 0] * src[D_BG, j] + m_vg[i, 1] * src[D_BG + 1, j]
-                   + m_vg[i, 2] * src[D_BG + 2, j])  # fmt: skip
-            dst[D_VEL + i, j] = src[D_VEL + i, j] + inc
-            # the position takes half the tick's velocity change (p += v dt + a dt^2 / 2)
-            dst[D_POS + i, j] = src[D_POS + i, j] + dt * src[D_VEL + i, j] + 0.5 * dt * inc
-            dst[D_BG + i, j] = src[D_BG + i, j]
-            dst[D_BA + i, j] = src[D_BA + i, j]
-            dst[D_GW + i, j] = decay * src[D_GW + i, j]
-            dst[D_BM + i, j] = src[D_BM + i, j]
+            row = E_COV + (blk + i) * N_ERR
+            a0, a1, a2 = st[row + D_ATT], st[row + D_ATT + 1], st[row + D_ATT + 2]
+            g0, g1, g2 = st[row + D_BG], st[row + D_BG + 1], st[row + D_BG + 2]
+            b0, b1, b2 = st[row + D_BA], st[row + D_BA + 1], st[row + D_BA + 2]
+            inc0 = (va0 * a0 + va1 * a1 + va2 * a2 - rd0 * b0 - rd1 * b1 - rd2 * b2
+                    + vg0 * g0 + vg1 * g1 + vg2 * g2)  # fmt: skip
+            inc1 = (va3 * a0 + va4 * a1 + va5 * a2 - rd3 * b0 - rd4 * b1 - rd5 * b2
+                    + vg3 * g0 + vg4 * g1 + vg5 * g2)  # fmt: skip
+            inc2 = (va6 * a0 + va7 * a1 + va8 * a2 - rd6 * b0 - rd7 * b1 - rd8 * b2
+                    + vg6 * g0 + vg7 * g1 + vg8 * g2)  # fmt: skip
+            v0, v1, v2 = st[row + D_VEL], st[row + D_VEL + 1], st[row + D_VEL + 2]
+            st[row + D_VEL] = v0 + inc0
+            st[row + D_VEL + 1] = v1 + inc1
+            st[row + D_VEL + 2] = v2 + inc2
+            st[row + D_POS] = st[row + D_POS] + dt * v0 + hdt * inc0
+            st[row + D_POS + 1] = st[row + D_POS + 1] + dt * v1 + hdt * inc1
+            st[row + D_POS + 2] = st[row + D_POS + 2] + dt * v2 + hdt * inc2
+            st[row + D_GW] *= decay
+            st[row + D_GW + 1] *= decay
+            st[row + D_GW + 2] *= decay
+            st[row + D_ATT] = rw0 * a0 + rw3 * a1 + rw6 * a2 - dt * g0
+            st[row + D_ATT + 1] = rw1 * a0 + rw4 * a1 + rw7 * a2 - dt * g1
+            st[row + D_ATT + 2] = rw2 * a0 + rw5 * a1 + rw8 * a2 - dt * g2
+    for bi in range(len(_CHANGED)):  # the changed blocks among themselves: symmetrised
+        for bj in range(bi, len(_CHANGED)):
+            for i in range(3):
+                r = _CHANGED[bi] + i
+                for j in range(i + 1 if bj == bi else 0, 3):
+                    c = _CHANGED[bj] + j
+                    m = 0.5 * (st[E_COV + r * N_ERR + c] + st[E_COV + c * N_ERR + r])
+                    st[E_COV + r * N_ERR + c] = m
+                    st[E_COV + c * N_ERR + r] = m
+    for u0 in _HELD:  # the held rows, from the changed rows' columns
+        for i in range(3):
+            u = u0 + i
+            for c0 in _CHANGED:
+                for j in range(3):
+                    c = c0 + j
+                    st[E_COV + u * N_ERR + c] = st[E_COV + c * N_ERR + u]
 
 
 @njit
 def _propagate(params: FloatArray, st: FloatArray, gyro: FloatArray, accel: FloatArray, dt: float) -> None:
-    """Nominal mechanisation and covariance over ``dt`` with the IMU sample held:
-    ``p += v dt + a_E dt^2 / 2``, ``v += a_E dt`` with ``a_E = R (f - b_a) + g_E``,
-    ``q = q (x) Exp((w - b_g) dt)``; ``P = F P F^T + Q``."""
+    """:func:`_propagate_at` with the IMU sample given (for the tests)."""
+    for i in range(3):
+        st[E_IMU_IN + i] = gyro[i]
+        st[E_IMU_IN + 3 + i] = accel[i]
+    _propagate_at(params, st, E_IMU_IN, E_IMU_IN + 3, dt)
+
+
+@njit
+def _propagate_at(params: FloatArray, st: FloatArray, g_at: int, a_at: int, dt: float) -> None:
+    """Nominal mechanisation and covariance over ``dt`` with the IMU sample (gyro at
+    ``st[g_at:]``, accelerometer at ``st[a_at:]``) held: ``p += v dt + a_E dt^2 / 2``,
+    ``v += a_E dt`` with ``a_E = R (f - b_a) + g_E``, ``q = q (x) Exp((w - b_g) dt)``;
+    ``P = F P F^T + Q``. F's blocks are left in the scratch ``E_F_BLOCKS``."""
     if dt <= 0.0:
         return
-    nom = st[E_NOM : E_NOM + N_NOM]
-    q = nom[N_Q : N_Q + 4]
-    w = np.empty(3)
-    a = np.empty(3)
-    for i in range(3):
-        w[i] = gyro[i] - nom[N_BG + i]
-        a[i] = accel[i] - nom[N_BA + i]
+    nom = E_NOM
+    w = (st[g_at] - st[nom + N_BG], st[g_at + 1] - st[nom + N_BG + 1], st[g_at + 2] - st[nom + N_BG + 2])
+    a = (st[a_at] - st[nom + N_BA], st[a_at + 1] - st[nom + N_BA + 1], st[a_at + 2] - st[nom + N_BA + 2])
+    q = _nom_quat(st)
     # the specific force rotated with the attitude at the interval's middle: the error of
     # rotating it with the start attitude grows with the rate (a 45 deg/s pitch rate tilts
     # it by 0.2 deg over a 10 ms tick, which the filter would take for a bias)
-    q_start = q.copy()
-    r_mid = rot_from_quat(quat_mul(q, quat_from_rotvec(0.5 * w[0] * dt, 0.5 * w[1] * dt, 0.5 * w[2] * dt)))
-    ae = np.empty(3)
-    for i in range(3):
-        ae[i] = r_mid[i, 0] * a[0] + r_mid[i, 1] * a[1] + r_mid[i, 2] * a[2]
-    ae[2] -= params[K_G]
+    dq, ra = _transition_blocks(q, w, a, dt, st, E_F_BLOCKS)
     decay = math.exp(-dt / params[K_WANDER_TAU])
+    st[E_F_BLOCKS + F_DECAY] = decay
     for i in range(3):
-        nom[N_POS + i] += dt * nom[N_VEL + i] + 0.5 * dt * dt * ae[i]
-        nom[N_VEL + i] += dt * ae[i]
-        nom[N_GW + i] *= decay  # the Gauss-Markov wander's mean decays toward zero
-    dq = quat_from_rotvec(w[0] * dt, w[1] * dt, w[2] * dt)
-    qn = quat_mul(q, dq)
+        ae = ra[i] - params[K_G] if i == 2 else ra[i]
+        st[nom + N_POS + i] += dt * st[nom + N_VEL + i] + 0.5 * dt * dt * ae
+        st[nom + N_VEL + i] += dt * ae
+        st[nom + N_GW + i] *= decay  # the Gauss-Markov wander's mean decays toward zero
+    qn = _qmul(q, dq)
     norm = math.sqrt(qn[0] * qn[0] + qn[1] * qn[1] + qn[2] * qn[2] + qn[3] * qn[3])
     for i in range(4):
-        q[i] = qn[i] / norm
-    # covariance: P <- F (F P)^T (P symmetric), then Q on the diagonal
-    rw = rot_from_quat(dq)
-    m_va, r_dt, m_vg = _velocity_blocks(q_start, w, a, dt)
-    p = _cov(st)
-    tmp = np.empty((N_ERR, N_ERR))
-    _apply_f(p, tmp, rw, m_va, r_dt, m_vg, dt, decay)
-    _apply_f(tmp.T, p, rw, m_va, r_dt, m_vg, dt, decay)
+        st[nom + N_Q + i] = qn[i] / norm
+    # covariance: P <- F P F^T (P is symmetric: the updates keep it so), then Q on the
+    # diagonal
+    _apply_f(st, E_COV, N_ERR, N_ERR, st, E_F_BLOCKS, dt)
+    _f_rows(st, st, E_F_BLOCKS, dt)
     for i in range(3):
-        p[D_ATT + i, D_ATT + i] += params[K_Q_GYRO] * dt
-        p[D_VEL + i, D_VEL + i] += params[K_Q_ACCEL] * dt
-        p[D_BG + i, D_BG + i] += params[K_Q_GYRO_WALK] * dt
-        p[D_BA + i, D_BA + i] += params[K_Q_ACCEL_WALK] * dt
-        p[D_GW + i, D_GW + i] += params[K_WANDER_VAR + i] * (1.0 - decay * decay)
-        p[D_BM + i, D_BM + i] += params[K_Q_MAG_WALK] * dt
-    for i in range(N_ERR):  # hold the symmetry round-off would break
-        for j in range(i + 1, N_ERR):
-            m = 0.5 * (p[i, j] + p[j, i])
-            p[i, j] = m
-            p[j, i] = m
+        st[E_COV + (D_ATT + i) * (N_ERR + 1)] += params[K_Q_GYRO] * dt
+        st[E_COV + (D_VEL + i) * (N_ERR + 1)] += params[K_Q_ACCEL] * dt
+        st[E_COV + (D_BG + i) * (N_ERR + 1)] += params[K_Q_GYRO_WALK] * dt
+        st[E_COV + (D_BA + i) * (N_ERR + 1)] += params[K_Q_ACCEL_WALK] * dt
+        st[E_COV + (D_GW + i) * (N_ERR + 1)] += params[K_WANDER_VAR + i] * (1.0 - decay * decay)
+        st[E_COV + (D_BM + i) * (N_ERR + 1)] += params[K_Q_MAG_WALK] * dt
 
 
 # ------------------------------------------------------------------ corrections
 
 
 @njit
-def _scalar_update(p: FloatArray, dx: FloatArray, h: FloatArray, y: float, r: float) -> None:
-    """One scalar measurement ``y = h dx + v`` (``v ~ N(0, r)``) into the error mean ``dx``
-    and ``p``: ``K = P h / S``, ``dx += K (y - h dx)``, ``P -= K (P h)^T``. A vector with
-    uncorrelated components fused one component at a time equals the batch update."""
-    ph = np.zeros(N_ERR)
-    hph = 0.0
-    innov = y
-    for j in range(N_ERR):
-        if h[j] != 0.0:  # H rows are sparse: a few ones or a heading Jacobian
-            innov -= h[j] * dx[j]
-            for i in range(N_ERR):
-                ph[i] += p[i, j] * h[j]
-    for j in range(N_ERR):
-        hph += h[j] * ph[j]
-    s = hph + r
-    for i in range(N_ERR):
-        k = ph[i] / s
-        dx[i] += k * innov
+def _prepare(st: FloatArray, m: int) -> float:
+    """The first half of fusing ``m`` scalar measurements ``y_i = h_i dx + v_i`` (rows
+    ``h_i`` in the scratch ``E_HM``, ``y_i`` against the nominal state in ``E_Y``,
+    ``v_i ~ N(0, r_i)`` with ``r_i`` in ``E_R``) one after the other: ``K_i = P_i h_i /
+    S_i``, ``dx += K_i (y_i - h_i dx)`` (the scratch ``E_DX``, cleared here), ``P_{i+1} =
+    P_i - K_i (P_i h_i)^T``. A vector with uncorrelated components fused one component at
+    a time equals the batch update. ``P_i h_i = P h_i - sum_k<i K_k (P_k h_k)^T h_i``
+    needs only the ``P h`` of the ones before, so ``P`` is only read here and written once
+    by :func:`_commit`, which a measurement the gate refuses never reaches. Returns the
+    NIS, ``y^T S^-1 y = sum_i nu_i^2 / S_i`` with ``nu_i`` the sequential innovations, and
+    leaves ``diag(S)`` in ``E_S_DIAG``."""
+    n = _wide(st, N_ERR)
+    _zero(st, E_DX, N_ERR)
+    nis = 0.0
+    for i in range(m):
+        h, ph = E_HM + i * N_ERR, E_PH + i * N_ERR
+        for c in range(n):
+            st[ph + c] = 0.0
+        innov = st[E_Y + i]
+        unit = -1  # the row's shape, for the log: h_att + a single 1
+        fits = True
         for j in range(N_ERR):
-            p[i, j] -= k * ph[j]
+            hj = st[h + j]
+            if hj != 0.0:  # H rows are sparse: a few ones or a heading Jacobian
+                innov -= hj * st[E_DX + j]
+                for c in range(n):  # row j of P: its column j (P is symmetric)
+                    st[ph + c] += st[E_COV + j * N_ERR + c] * hj
+                if not D_ATT <= j < D_ATT + 3:
+                    fits = fits and hj == 1.0 and unit < 0
+                    unit = j
+        st[E_UNIT + i] = unit if fits else -1.0
+        st[E_S_DIAG + i] = _sparse_dot(st, h, ph) + st[E_R + i]
+        for k in range(i):  # what the updates before took off P h_i
+            phk = E_PH + k * N_ERR
+            f = _sparse_dot(st, h, phk) / st[E_S_UPD + k]
+            for c in range(n):
+                st[ph + c] -= st[phk + c] * f
+        s = _sparse_dot(st, h, ph) + st[E_R + i]
+        st[E_S_UPD + i] = s
+        st[E_NU + i] = innov
+        nis += innov * innov / s
+        k_nu = innov / s
+        for c in range(n):
+            st[E_DX + c] += st[ph + c] * k_nu
+    return nis
 
 
 @njit
-def _inject(st: FloatArray, dx: FloatArray) -> None:
-    """Fold the error mean into the nominal state (the reset Jacobian taken as identity,
-    Sola 2017 s. 6.3: its effect is second order in d_theta)."""
-    nom = st[E_NOM : E_NOM + N_NOM]
-    dq = quat_from_rotvec(dx[D_ATT], dx[D_ATT + 1], dx[D_ATT + 2])
-    qn = quat_mul(nom[N_Q : N_Q + 4], dq)
+def _sparse_dot(st: FloatArray, h: int, x: int) -> float:
+    """``h . x`` for a sparse row ``h`` (at ``st[h:]``) and ``x`` at ``st[x:]``."""
+    v = 0.0
+    for j in range(N_ERR):
+        if st[h + j] != 0.0:
+            v += st[h + j] * st[x + j]
+    return v
+
+
+@njit
+def _commit(st: FloatArray, m: int) -> None:
+    """The second half of :func:`_prepare`: ``P -= sum g_i g_i^T`` with ``g_i = P_i h_i /
+    sqrt(S_i)``; every product ``g_a g_b`` is the same for ``(a, b)`` and ``(b, a)``, so
+    ``P`` stays exactly symmetric, and its rows are its columns. The updates are logged
+    where ``E_LOG_REC`` says; ``dx`` is left for :func:`_inject`."""
+    n = _wide(st, N_ERR)
+    for i in range(m):
+        sq = 1.0 / math.sqrt(st[E_S_UPD + i])
+        ph, g = E_PH + i * N_ERR, E_G + i * N_ERR
+        for c in range(n):
+            st[g + c] = st[ph + c] * sq
+    if st[E_LOG_REC] >= 0.0:
+        for i in range(m):
+            _log_update(st, int(st[E_LOG_REC]), i)
+    _downdate(st, m)
+
+
+@njit
+def _downdate(st: FloatArray, m: int) -> None:
+    """``P -= sum_i g_i g_i^T`` for the ``m`` vectors in the scratch ``E_G``: three at a
+    time, so P is read and written once for a magnetometer sample."""
+    n = _wide(st, N_ERR)
+    i = 0
+    while m - i >= 3:
+        g0, g1, g2 = E_G + i * N_ERR, E_G + (i + 1) * N_ERR, E_G + (i + 2) * N_ERR
+        for a in range(N_ERR):
+            a0, a1, a2 = st[g0 + a], st[g1 + a], st[g2 + a]
+            row = E_COV + a * N_ERR
+            for b in range(n):
+                st[row + b] -= a0 * st[g0 + b] + a1 * st[g1 + b] + a2 * st[g2 + b]
+        i += 3
+    for k in range(i, m):
+        g = E_G + k * N_ERR
+        for a in range(N_ERR):
+            ga = st[g + a]
+            row = E_COV + a * N_ERR
+            for b in range(n):
+                st[row + b] -= ga * st[g + b]
+
+
+@njit
+def _log_update(st: FloatArray, rec: int, i: int) -> None:
+    """Keep scalar update ``i`` of :func:`_prepare` in record ``rec`` for a late fix
+    (:func:`_fuse_late_gps`); an update of another shape than ``h_att`` + a single 1, or
+    one too many, ends the record's use for that."""
+    rec = _nn(rec)
+    k = int(st[rec + R_N_UPD])
+    unit = st[E_UNIT + i]
+    if k >= MAX_UPD or unit < 0.0:
+        st[rec + R_XC_OK] = 0.0
+        return
+    u = rec + R_UPD + k * UPD_SIZE
+    _copy(st, u + U_PH, E_PH + i * N_ERR, N_ERR)
+    _copy(st, u + U_H_ATT, E_HM + i * N_ERR + D_ATT, 3)
+    st[u + U_H_UNIT] = unit
+    st[u + U_S] = st[E_S_UPD + i]
+    st[u + U_NU] = st[E_NU + i]
+    st[rec + R_N_UPD] = k + 1
+
+
+@njit
+def _inject(st: FloatArray, dx: FloatArray, at: int = 0) -> None:
+    """Fold the error mean ``dx[at:]`` into the nominal state (the reset Jacobian taken as
+    identity, Sola 2017 s. 6.3: its effect is second order in d_theta)."""
+    nom = E_NOM
+    dq = _qexp(dx[at + D_ATT], dx[at + D_ATT + 1], dx[at + D_ATT + 2])
+    qn = _qmul(_nom_quat(st), dq)
     norm = math.sqrt(qn[0] * qn[0] + qn[1] * qn[1] + qn[2] * qn[2] + qn[3] * qn[3])
     for i in range(4):
-        nom[N_Q + i] = qn[i] / norm
+        st[nom + N_Q + i] = qn[i] / norm
     for i in range(3):
-        nom[N_VEL + i] += dx[D_VEL + i]
-        nom[N_POS + i] += dx[D_POS + i]
-        nom[N_BG + i] += dx[D_BG + i]
-        nom[N_BA + i] += dx[D_BA + i]
-        nom[N_GW + i] += dx[D_GW + i]
-        nom[N_BM + i] += dx[D_BM + i]
+        st[nom + N_VEL + i] += dx[at + D_VEL + i]
+        st[nom + N_POS + i] += dx[at + D_POS + i]
+        st[nom + N_BG + i] += dx[at + D_BG + i]
+        st[nom + N_BA + i] += dx[at + D_BA + i]
+        st[nom + N_GW + i] += dx[at + D_GW + i]
+        st[nom + N_BM + i] += dx[at + D_BM + i]
 
 
 @njit
-def _cholesky_nis(s: FloatArray, y: FloatArray, m: int) -> float:
-    """``y^T S^-1 y`` of the leading ``m`` x ``m`` block (Cholesky; inf if not positive)."""
-    low = np.zeros((m, m))
-    for i in range(m):
-        for j in range(i + 1):
-            v = s[i, j]
-            for k in range(j):
-                v -= low[i, k] * low[j, k]
-            if i == j:
-                if v <= 0.0:
-                    return math.inf
-                low[i, i] = math.sqrt(v)
-            else:
-                low[i, j] = v / low[j, j]
-    z = np.empty(m)
-    for i in range(m):
-        v = y[i]
-        for k in range(i):
-            v -= low[i, k] * z[k]
-        z[i] = v / low[i, i]
-    return float(z @ z)
+def _cholesky_nis(st: FloatArray, m: int) -> float:
+    """``y^T S^-1 y`` for the innovations ``y`` (scratch ``E_Y``) and their covariance ``S``
+    (scratch ``E_S``, m x m row-major, its lower triangle): Cholesky, inf if not positive.
+    ``L`` is left in ``E_CHOL`` (column j at ``j m + j``..) and ``L^-1 y`` in ``E_CHOL_Z``.
+    Right-looking: each pivot's column is taken off the rest at once, whole columns at a
+    time; every element sees the same subtractions in the same order as in the textbook's
+    row-by-row form."""
+    low, z = E_CHOL, E_CHOL_Z
+    for j in range(m):
+        for i in range(j, m):
+            st[low + j * m + i] = st[E_S + i * m + j]
+        st[z + j] = st[E_Y + j]
+    for k in range(m):
+        col = low + k * m
+        v = st[col + k]
+        if v <= 0.0:
+            return math.inf
+        d = math.sqrt(v)
+        st[col + k] = d
+        for i in range(k + 1, m):
+            st[col + i] = st[col + i] / d
+        for j in range(k + 1, m):
+            ljk = st[col + j]
+            for i in range(j, m):
+                st[low + j * m + i] -= st[col + i] * ljk
+    # forward substitution L z = y, column by column (the same order for each element)
+    for k in range(m):
+        col = low + k * m
+        zk = st[z + k] / st[col + k]
+        st[z + k] = zk
+        for i in range(k + 1, m):
+            st[z + i] -= st[col + i] * zk
+    zz = st[z : z + m]
+    return float(zz @ zz)
 
 
 @njit
-def _gps_rows(params: FloatArray, use_vel: bool) -> tuple[FloatArray, FloatArray, int]:
-    """``H`` (rows: position N, W, U, then velocity) and the white variances."""
+def _gps_rows(params: FloatArray, st: FloatArray, use_vel: bool) -> int:
+    """``H`` (rows: position N, W, U, then velocity) in the scratch ``E_HM``; its row count."""
     m = 6 if use_vel else 3
-    h = np.zeros((m, N_ERR))
-    r = np.empty(m)
+    _zero(st, E_HM, MAX_Y * N_ERR)
     for i in range(3):
-        h[i, D_POS + i] = 1.0
+        st[E_HM + i * N_ERR + D_POS + i] = 1.0
         if params[K_WANDER_VAR + i] > 0.0:
-            h[i, D_GW + i] = 1.0
-        r[i] = params[K_R_GPS_POS + i]
+            st[E_HM + i * N_ERR + D_GW + i] = 1.0
         if use_vel:
-            h[3 + i, D_VEL + i] = 1.0
-            r[3 + i] = params[K_R_GPS_VEL + i]
-    return h, r, m
+            st[E_HM + (3 + i) * N_ERR + D_VEL + i] = 1.0
+    return m
 
 
 @njit
-def _reset_gps(params: FloatArray, st: FloatArray, pos: FloatArray, vel: FloatArray, use_vel: bool) -> None:
-    """Position (and velocity) set to the fix, the wander zeroed, their covariance rows
-    cleared and their variances set to the fix's: a receiver that jumped is believed."""
+def _gps_r(params: FloatArray, i: int) -> float:
+    """The white variance of row ``i`` of :func:`_gps_rows`."""
+    return float(params[K_R_GPS_POS + i] if i < 3 else params[K_R_GPS_VEL + i - 3])
+
+
+@njit
+def _reset_gps(params: FloatArray, st: FloatArray, pos: int, vel: int, use_vel: bool) -> None:
+    """Position (and velocity) set to the fix (at ``st[pos:]``, ``st[vel:]``), the wander
+    zeroed, their covariance rows cleared and their variances set to the fix's: a
+    receiver that jumped is believed."""
     nom = st[E_NOM : E_NOM + N_NOM]
     p = _cov(st)
     for i in range(3):
-        nom[N_POS + i] = pos[i]
+        nom[N_POS + i] = st[pos + i]
         nom[N_GW + i] = 0.0
         if use_vel:
-            nom[N_VEL + i] = vel[i]
+            nom[N_VEL + i] = st[vel + i]
     for i in range(3):
         rows = (D_POS + i, D_GW + i, D_VEL + i) if use_vel else (D_POS + i, D_GW + i, -1)
         for row in rows:
@@ -652,71 +1068,67 @@ def _reset_gps(params: FloatArray, st: FloatArray, pos: FloatArray, vel: FloatAr
 
 
 @njit
-def _apply_gps(params: FloatArray, st: FloatArray, flag: float, t_fix: float, pos: FloatArray,
-               vel: FloatArray) -> float:  # fmt: skip
-    """Fuse one fix into the filter as it is now (its validity time). A pending fix is
-    gated on the NIS of the whole fix and logged; returns the flag it ends with."""
-    use_vel = _finite3(vel)
-    nom = st[E_NOM : E_NOM + N_NOM]
-    p = _cov(st)
-    h, r, m = _gps_rows(params, use_vel)
-    y = np.empty(m)
+def _gate_gps(params: FloatArray, st: FloatArray, t_fix: float, m: int, nis: float) -> float:
+    """The chi-square gate of a fix (its NIS; innovations in ``E_Y``, the diagonal of their
+    covariance in ``E_S_DIAG``; ``m`` = 3: position only), its log and counters; the flag
+    it ends with."""
+    use_vel = m == 6
+    st[E_NIS] = nis
+    st[E_T_INNOV] = t_fix
     for i in range(3):
-        y[i] = pos[i] - nom[N_POS + i] - nom[N_GW + i]
+        st[E_INNOV_POS + i], st[E_S_POS + i] = st[E_Y + i], st[E_S_DIAG + i]
+        st[E_INNOV_VEL + i] = st[E_Y + 3 + i] if use_vel else math.nan
+        st[E_S_VEL + i] = st[E_S_DIAG + 3 + i] if use_vel else math.nan
+    st[E_T_FIX_SEEN] = max(st[E_T_FIX_SEEN], t_fix)
+    gate = params[K_GATE_6] if use_vel else params[K_GATE_3]
+    if nis <= gate:
+        flag = M_ACCEPTED
+        st[E_N_FIX] += 1.0
+        st[E_N_CONSEC] = 0.0
+        st[E_T_FIX_GATED] = max(st[E_T_FIX_GATED], t_fix)
+    elif st[E_N_CONSEC] >= params[K_MAX_REJECTS]:
+        flag = M_RESET
+        st[E_N_RESET] += 1.0
+        st[E_N_CONSEC] = 0.0
+    else:
+        st[E_N_REJECT] += 1.0
+        st[E_N_CONSEC] += 1.0
+        return M_NONE
+    st[E_T_FIX] = max(st[E_T_FIX], t_fix)
+    return flag
+
+
+@njit
+def _apply_gps(params: FloatArray, st: FloatArray, flag: float, t_fix: float, pos: int, vel: int) -> float:
+    """Fuse one fix (position at ``st[pos:]``, velocity at ``st[vel:]``, NaN: none) into the
+    filter as it is now (its validity time). A pending fix is gated on the NIS of the
+    whole fix and logged; returns the flag it ends with."""
+    use_vel = _finite3(st, vel)
+    m = _gps_rows(params, st, use_vel)
+    for i in range(3):
+        st[E_Y + i] = st[pos + i] - st[E_NOM + N_POS + i] - st[E_NOM + N_GW + i]
         if use_vel:
-            y[3 + i] = vel[i] - nom[N_VEL + i]
+            st[E_Y + 3 + i] = st[vel + i] - st[E_NOM + N_VEL + i]
+    for i in range(m):
+        st[E_R + i] = _gps_r(params, i)
+    nis = _prepare(st, m)
     if flag == M_PENDING:
-        s = np.empty((m, m))  # H P H^T + R
-        for i in range(m):
-            for j in range(m):
-                v = 0.0
-                for a in range(N_ERR):
-                    if h[i, a] != 0.0:
-                        for b in range(N_ERR):
-                            v += h[i, a] * p[a, b] * h[j, b]
-                s[i, j] = v
-            s[i, i] += r[i]
-        nis = _cholesky_nis(s, y, m)
-        st[E_NIS] = nis
-        st[E_T_INNOV] = t_fix
-        for i in range(3):
-            st[E_INNOV_POS + i], st[E_S_POS + i] = y[i], s[i, i]
-            st[E_INNOV_VEL + i] = y[3 + i] if use_vel else math.nan
-            st[E_S_VEL + i] = s[3 + i, 3 + i] if use_vel else math.nan
-        st[E_T_FIX_SEEN] = max(st[E_T_FIX_SEEN], t_fix)
-        gate = params[K_GATE_6] if use_vel else params[K_GATE_3]
-        if nis <= gate:
-            flag = M_ACCEPTED
-            st[E_N_FIX] += 1.0
-            st[E_N_CONSEC] = 0.0
-            st[E_T_FIX_GATED] = max(st[E_T_FIX_GATED], t_fix)
-        elif st[E_N_CONSEC] >= params[K_MAX_REJECTS]:
-            flag = M_RESET
-            st[E_N_RESET] += 1.0
-            st[E_N_CONSEC] = 0.0
-        else:
-            st[E_N_REJECT] += 1.0
-            st[E_N_CONSEC] += 1.0
-            return M_NONE
-        st[E_T_FIX] = max(st[E_T_FIX], t_fix)
+        flag = _gate_gps(params, st, t_fix, m, nis)
+        if flag == M_NONE:
+            return flag
     if flag == M_RESET:
         _reset_gps(params, st, pos, vel, use_vel)
         return flag
-    dx = np.zeros(N_ERR)
-    for i in range(m):
-        _scalar_update(p, dx, h[i], y[i], r[i])
-    _inject(st, dx)
+    _commit(st, m)
+    _inject(st, st, E_DX)
     return flag
 
 
 @njit
 def _apply_baro(params: FloatArray, st: FloatArray, flag: float, z: float) -> float:
-    p = _cov(st)
-    h = np.zeros(N_ERR)
-    h[D_POS + 2] = 1.0
     y = z - st[E_NOM + N_POS + 2]
     if flag == M_PENDING:
-        s = p[D_POS + 2, D_POS + 2] + params[K_R_BARO]
+        s = st[E_COV + (D_POS + 2) * (N_ERR + 1)] + params[K_R_BARO]
         nis = y * y / s
         st[E_BARO_INNOV], st[E_BARO_S], st[E_BARO_NIS] = y, s, nis
         if nis > params[K_GATE_1] and st[E_N_BARO_CONSEC] < params[K_MAX_REJECTS]:
@@ -728,9 +1140,13 @@ def _apply_baro(params: FloatArray, st: FloatArray, flag: float, z: float) -> fl
         flag = M_ACCEPTED
         st[E_N_BARO] += 1.0
         st[E_N_BARO_CONSEC] = 0.0
-    dx = np.zeros(N_ERR)
-    _scalar_update(p, dx, h, y, params[K_R_BARO])
-    _inject(st, dx)
+    _zero(st, E_HM, N_ERR)
+    st[E_HM + D_POS + 2] = 1.0
+    st[E_Y] = y
+    st[E_R] = params[K_R_BARO]
+    _prepare(st, 1)
+    _commit(st, 1)
+    _inject(st, st, E_DX)
     return flag
 
 
@@ -772,36 +1188,33 @@ def mag_jacobian(r: FloatArray, field_nwu: FloatArray) -> FloatArray:
 
 
 @njit
-def _apply_mag(params: FloatArray, st: FloatArray, flag: float, t_meas: float, field: FloatArray) -> float:
-    """Fuse a magnetometer sample as the three components of the body field: the
-    measurement less the calibration offsets against ``R^T m`` of the earth's field at
-    home. A 3-axis fusion and not a heading: where the field is steep (68 deg of
+def _apply_mag(params: FloatArray, st: FloatArray, flag: float, t_meas: float, field: int) -> float:
+    """Fuse a magnetometer sample (at ``st[field:]``) as the three components of the body
+    field: the measurement less the calibration offsets against ``R^T m`` of the earth's
+    field at home. A 3-axis fusion and not a heading: where the field is steep (68 deg of
     inclination at the default home) a heading levelled with a roll error of 1 deg is off
     by up to 2.5 deg, which a heading fusion would book as a yaw error."""
-    nom = st[E_NOM : E_NOM + N_NOM]
-    r = rot_from_quat(nom[N_Q : N_Q + 4])
-    m_e = params[K_MAG_FIELD : K_MAG_FIELD + 3]
-    jac = mag_jacobian(r, m_e)
-    y = np.empty(3)
+    r = _qrot(_nom_quat(st))
+    m0, m1, m2 = params[K_MAG_FIELD], params[K_MAG_FIELD + 1], params[K_MAG_FIELD + 2]
+    # the rows of H = [J 0 ... I], J = [R^T m]x (mag_jacobian)
+    mb = (r[0] * m0 + r[3] * m1 + r[6] * m2, r[1] * m0 + r[4] * m1 + r[7] * m2,
+          r[2] * m0 + r[5] * m1 + r[8] * m2)  # fmt: skip
+    h = E_HM
+    _zero(st, h, 3 * N_ERR)
+    st[h + D_ATT + 1], st[h + D_ATT + 2] = -mb[2], mb[1]
+    st[h + N_ERR + D_ATT], st[h + N_ERR + D_ATT + 2] = mb[2], -mb[0]
+    st[h + 2 * N_ERR + D_ATT], st[h + 2 * N_ERR + D_ATT + 1] = -mb[1], mb[0]
     for i in range(3):
-        pred = r[0, i] * m_e[0] + r[1, i] * m_e[1] + r[2, i] * m_e[2]
-        y[i] = field[i] - params[K_MAG_OFFSETS + i] - nom[N_BM + i] - pred
-    p = _cov(st)
-    rm = params[K_R_MAG]
+        st[h + i * N_ERR + D_BM + i] = 1.0
+        st[E_Y + i] = st[field + i] - params[K_MAG_OFFSETS + i] - st[E_NOM + N_BM + i] - mb[i]
+    for i in range(3):
+        st[E_R + i] = params[K_R_MAG]
+    nis = _prepare(st, 3)
     if flag == M_PENDING:
-        s = np.empty((3, 3))  # H P H^T + R with H = [J 0 ... I]
-        for i in range(3):
-            for j in range(3):
-                v = (rm if i == j else 0.0) + p[D_BM + i, D_BM + j]
-                for a in range(3):
-                    v += jac[i, a] * p[D_ATT + a, D_BM + j] + p[D_BM + i, D_ATT + a] * jac[j, a]
-                    for b in range(3):
-                        v += jac[i, a] * p[D_ATT + a, D_ATT + b] * jac[j, b]
-                s[i, j] = v
-        nis = _cholesky_nis(s, y, 3)
+        y0, y1, y2 = st[E_Y], st[E_Y + 1], st[E_Y + 2]
         st[E_MAG_NIS] = nis
-        st[E_MAG_S] = s[0, 0] + s[1, 1] + s[2, 2]
-        st[E_MAG_INNOV] = math.sqrt(y[0] * y[0] + y[1] * y[1] + y[2] * y[2])
+        st[E_MAG_S] = st[E_S_DIAG] + st[E_S_DIAG + 1] + st[E_S_DIAG + 2]
+        st[E_MAG_INNOV] = math.sqrt(y0 * y0 + y1 * y1 + y2 * y2)
         st[E_T_MAG_SEEN] = max(st[E_T_MAG_SEEN], t_meas)
         if nis <= params[K_GATE_3]:
             flag = M_ACCEPTED
@@ -821,36 +1234,39 @@ def _apply_mag(params: FloatArray, st: FloatArray, flag: float, t_meas: float, f
     if flag == M_RESET:
         m = np.empty(3)
         for i in range(3):
-            m[i] = field[i] - params[K_MAG_OFFSETS + i] - st[E_NOM + N_BM + i]
+            m[i] = st[field + i] - params[K_MAG_OFFSETS + i] - st[E_NOM + N_BM + i]
         _realign(params, st, m)
         return flag
-    dx = np.zeros(N_ERR)
-    h = np.zeros(N_ERR)
-    for i in range(3):
-        for a in range(3):
-            h[D_ATT + a] = jac[i, a]
-            h[D_BM + a] = 1.0 if a == i else 0.0
-        _scalar_update(p, dx, h, y[i], rm)
-    _inject(st, dx)
+    _commit(st, 3)
+    _inject(st, st, E_DX)
     return flag
 
 
 @njit
-def _apply(params: FloatArray, st: FloatArray, rec: int, kind: int, flag: float) -> float:
+def _apply(params: FloatArray, st: FloatArray, rec: int, kind: int, flag: float, at_end: bool) -> float:
+    """Fuse record ``rec``'s measurement of ``kind``; ``at_end``: the filter is at the end
+    of the record's interval (its updates are logged there for a late fix to be carried
+    through; a GPS update, a reset, or an update inside the interval is not)."""
     t_meas = st[rec + R_T0]
+    st[E_LOG_REC] = rec if at_end and kind != _GPS else -1.0
+    if not at_end or kind == _GPS:
+        st[rec + R_XC_OK] = 0.0
     if kind == _GPS:
-        pos = st[rec + R_GPS_POS : rec + R_GPS_POS + 3]
-        vel = st[rec + R_GPS_VEL : rec + R_GPS_VEL + 3]
-        return _apply_gps(params, st, flag, t_meas + st[rec + R_GPS_TAU], pos, vel)
-    if kind == _BARO:
-        return _apply_baro(params, st, flag, st[rec + R_BARO_Z])
-    field = st[rec + R_MAG_FIELD : rec + R_MAG_FIELD + 3]
-    return _apply_mag(params, st, flag, t_meas + st[rec + R_MAG_TAU], field)
+        flag = _apply_gps(params, st, flag, t_meas + st[rec + R_GPS_TAU], rec + R_GPS_POS, rec + R_GPS_VEL)
+    elif kind == _BARO:
+        flag = _apply_baro(params, st, flag, st[rec + R_BARO_Z])
+    else:
+        flag = _apply_mag(params, st, flag, t_meas + st[rec + R_MAG_TAU], rec + R_MAG_FIELD)
+    st[E_LOG_REC] = -1.0
+    if flag == M_RESET:
+        st[rec + R_XC_OK] = 0.0
+    return flag
 
 
 # ------------------------------------------------------------------ the buffer
 
 
+_BIG = 1.7976931348623157e308  # the largest float64
 _FLAG = (R_GPS_FLAG, R_BARO_FLAG, R_MAG_FLAG)
 _TAU = (R_GPS_TAU, R_BARO_TAU, R_MAG_TAU)
 
@@ -861,29 +1277,45 @@ def _replay_record(params: FloatArray, st: FloatArray, rec: int) -> float:
     validity times in time order; returns the final flag of a pending one (M_NONE if none)."""
     result = M_NONE
     done = 0.0
-    gyro = st[rec + R_GYRO : rec + R_GYRO + 3]
-    accel = st[rec + R_ACCEL : rec + R_ACCEL + 3]
-    pending = np.zeros(3, dtype=np.bool_)
+    dt = st[rec + R_DT]
+    st[rec + R_XC_OK] = 1.0
+    st[rec + R_STALE] = 0.0
+    st[rec + R_N_UPD] = 0.0
+    pending = 0  # bit k: measurement k still to fuse
     for k in range(3):
-        pending[k] = st[rec + _FLAG[k]] != M_NONE
+        if st[rec + _FLAG[k]] != M_NONE:
+            pending |= 1 << k
     for _ in range(3):
         kind = -1
         for k in range(3):
-            if pending[k] and (kind < 0 or st[rec + _TAU[k]] < st[rec + _TAU[kind]]):
+            if pending & (1 << k) and (kind < 0 or st[rec + _TAU[k]] < st[rec + _TAU[kind]]):
                 kind = k
         if kind < 0:
             break
         tau = st[rec + _TAU[kind]]
-        _propagate(params, st, gyro, accel, tau - done)
+        _propagate_rec(params, st, rec, tau - done)
         done = tau
         old = st[rec + _FLAG[kind]]
-        new = _apply(params, st, rec, kind, old)
+        new = _apply(params, st, rec, kind, old, tau >= dt)
         st[rec + _FLAG[kind]] = new
-        pending[kind] = False
+        pending &= ~(1 << kind)
         if old == M_PENDING:
             result = new
-    _propagate(params, st, gyro, accel, st[rec + R_DT] - done)
+    _propagate_rec(params, st, rec, dt - done)
     return result
+
+
+@njit
+def _propagate_rec(params: FloatArray, st: FloatArray, rec: int, dt: float) -> None:
+    """:func:`_propagate_at` over a part of record ``rec``'s interval with its IMU sample,
+    its F kept there; a second part, or one after an update, ends the record's use for a
+    late fix."""
+    if dt <= 0.0:
+        return
+    if st[rec + R_N_UPD] > 0.0 or dt < st[rec + R_DT]:
+        st[rec + R_XC_OK] = 0.0
+    _propagate_at(params, st, rec + R_GYRO, rec + R_ACCEL, dt)
+    _copy(st, rec + R_FB, E_F_BLOCKS, FB_SIZE)
 
 
 @njit
@@ -894,11 +1326,11 @@ def _replay(params: FloatArray, st: FloatArray, age_from: int) -> float:
     for age in range(age_from, -1, -1):
         rec = _rec(params, st, age)
         if age == age_from:
-            st[E_NOM : E_NOM + N_NOM] = st[rec + R_NOM0 : rec + R_NOM0 + N_NOM]
-            st[E_COV : E_COV + N_COV] = st[rec + R_COV0 : rec + R_COV0 + N_COV]
+            _copy(st, E_NOM, rec + R_NOM0, N_NOM)
+            _unpack_cov(st, rec + R_COV0)
         else:
-            st[rec + R_NOM0 : rec + R_NOM0 + N_NOM] = st[E_NOM : E_NOM + N_NOM]
-            st[rec + R_COV0 : rec + R_COV0 + N_COV] = st[E_COV : E_COV + N_COV]
+            _copy(st, rec + R_NOM0, E_NOM, N_NOM)
+            _pack_cov(st, rec + R_COV0)
         flag = _replay_record(params, st, rec)
         if flag != M_NONE:
             result = flag
@@ -907,12 +1339,137 @@ def _replay(params: FloatArray, st: FloatArray, age_from: int) -> float:
 
 @njit
 def _locate(params: FloatArray, st: FloatArray, t_meas: float) -> tuple[int, float]:
+    """The record ``t_meas`` falls in (its age) and how far into it; a time within
+    ``T_SNAP_S`` of a tick is at the tick, the start of the next interval (the end of the
+    newest, now)."""
     for age in range(int(st[E_COUNT])):
         rec = _rec(params, st, age)
         tau = t_meas - st[rec + R_T0]
-        if tau >= 0.0:
-            return age, min(tau, st[rec + R_DT])
+        if tau >= -T_SNAP_S:
+            dt = st[rec + R_DT]
+            if tau >= dt - T_SNAP_S:
+                return (age - 1, 0.0) if age > 0 else (0, dt)
+            return age, max(tau, 0.0)
     return -1, 0.0
+
+
+@njit
+def _carried(params: FloatArray, st: FloatArray, age: int) -> bool:
+    """Whether a fix valid at the start of record ``age`` can be fused now through its
+    cross-covariance (:func:`_fuse_late_gps`): the record's start state has every earlier
+    fix in it, and each interval since is one propagation and logged updates (no other
+    fix, no reset)."""
+    ok = bool(st[_rec(params, st, age) + R_STALE] == 0.0)
+    for a in range(age, -1, -1):
+        ok = ok and st[_rec(params, st, a) + R_XC_OK] == 1.0
+    return ok
+
+
+@njit
+def _hx(params: FloatArray, st: FloatArray, x: int, n: int, c: int) -> float:
+    """Row ``c`` of the GPS's H (position N, W, U with the wander, then velocity) times the
+    column of the ``N_ERR``-row matrix at ``st[x:]`` (row stride ``n``)."""
+    if c >= 3:
+        return float(st[x + (D_VEL + c - 3) * n])
+    v = float(st[x + (D_POS + c) * n])
+    if params[K_WANDER_VAR + c] > 0.0:
+        v += st[x + (D_GW + c) * n]
+    return v
+
+
+@njit
+def _fuse_late_gps(params: FloatArray, st: FloatArray, age: int) -> float:
+    """Fuse the fix valid at the start of record ``age`` into the filter as it is now,
+    without running the filter again: with ``z = H x_s + v`` and the updates since
+    ``t_s``, the joint Gaussian of ``x_now`` and ``H x_s`` is carried forward, and the fix
+    conditions ``x_now`` on it (docs/estimator.md, "Late fixes"). ``C = Cov(x, H x_s)``
+    starts as ``P_s H^T`` and goes ``C <- F C`` over each interval (the process noise after
+    ``t_s`` is independent of ``x_s``) and ``C <- C - K (h^T C)`` at each scalar update of
+    gain ``K = P h / S``, which also takes ``(h^T C)^T (h^T C) / S`` off ``V = Var(H x_s)``
+    and adds ``(h^T C)^T nu / S`` to ``E[H x_s]``. Then ``x_now += C S^-1 (z - E[H x_s])``
+    and ``P -= C S^-1 C^T`` with ``S = V + R``: the replay's result for a linear filter
+    (conditioning does not depend on the order), here to first order in the correction,
+    as the filter's own linearisation. Gated as a fix fused at its time; the flag it
+    ends with."""
+    rec_s = _nn(_rec(params, st, age))
+    pos, vel = rec_s + R_GPS_POS, rec_s + R_GPS_VEL
+    use_vel = _finite3(st, vel)
+    m = 6 if use_vel else 3
+    n = XC_W
+    # C, V, E[H x_s] and an update's h^T C / S in arrays of their own (made once a fix):
+    # the compiler then sees that the loops writing them read nothing they write, and runs
+    # them wide, which scratch in the state (one array to it) does not allow
+    xc = np.zeros(N_ERR * XC_W)
+    v = np.zeros(XC_W * XC_W)
+    mu = np.zeros(XC_W)
+    w = np.zeros(XC_W)
+    _unpack_cov(st, rec_s + R_COV0, E_COV_S)
+    nom0 = rec_s + R_NOM0
+    for r in range(N_ERR):  # P_s H^T: row r of P_s times H^T (P_s symmetric)
+        for c in range(m):
+            xc[r * n + c] = _hx(params, st, E_COV_S + r * N_ERR, 1, c)
+    for c in range(m):
+        for d in range(m):
+            v[c * n + d] = _hx(params, xc, d, n, c)
+        mu[c] = st[nom0 + N_VEL + c - 3] if c >= 3 else st[nom0 + N_POS + c] + st[nom0 + N_GW + c]
+    for a in range(age, -1, -1):
+        rec = _nn(_rec(params, st, a))
+        _apply_f(xc, 0, n, n, st, rec + R_FB, st[rec + R_DT])
+        for k in range(int(st[rec + R_N_UPD])):
+            u = _nn(rec + R_UPD + k * UPD_SIZE)
+            unit, inv_s, nu = _nn(int(st[u + U_H_UNIT])), 1.0 / st[u + U_S], st[u + U_NU]
+            h0, h1, h2 = st[u + U_H_ATT], st[u + U_H_ATT + 1], st[u + U_H_ATT + 2]
+            for c in range(n):  # h^T C, then over S
+                w[c] = (h0 * xc[D_ATT * n + c] + h1 * xc[(D_ATT + 1) * n + c] + h2 * xc[(D_ATT + 2) * n + c]
+                        + xc[unit * n + c]) * inv_s  # fmt: skip
+            for r in range(N_ERR):
+                kr = st[u + U_PH + r]
+                for c in range(n):
+                    xc[r * n + c] -= kr * w[c]
+            s_u = st[u + U_S]
+            for c in range(m):
+                wc = w[c]
+                mu[c] += wc * nu
+                wcs = wc * s_u
+                for d in range(c, m):  # the upper triangle: V is symmetric
+                    v[c * n + d] -= wcs * w[d]
+    # the fix's innovation and its covariance, gated as at its time
+    for c in range(m):
+        st[E_Y + c] = (st[vel + c - 3] if c >= 3 else st[pos + c]) - mu[c]
+        for d in range(m):
+            st[E_S + c * m + d] = v[c * n + d] if d >= c else v[d * n + c]
+        st[E_S + c * m + c] += _gps_r(params, c)
+    for c in range(m):
+        st[E_S_DIAG + c] = st[E_S + c * m + c]
+    flag = _gate_gps(params, st, st[rec_s + R_T0], m, _cholesky_nis(st, m))
+    st[rec_s + R_GPS_FLAG] = flag
+    if flag == M_RESET:  # a receiver that jumped is believed from its time on
+        _replay(params, st, age)
+        return flag
+    if flag != M_ACCEPTED:
+        return flag
+    # S = L L^T (left by the gate), z = L^-1 (z - E[H x_s]): with C' = C L^-T the update is
+    # m scalar ones, dx = C' z and P -= C' C'^T
+    low, z = E_CHOL, E_CHOL_Z
+    for k in range(m):
+        w[k] = 1.0 / st[low + k * m + k]
+    _zero(st, E_DX, N_ERR)
+    for r in range(N_ERR):
+        row = r * n
+        for k in range(m):
+            xk = xc[row + k] * w[k]
+            st[E_G + k * N_ERR + r] = xk
+            st[E_DX + r] += xk * st[z + k]
+            for i in range(k + 1, m):
+                xc[row + i] -= st[low + k * m + i] * xk
+    _downdate(st, m)
+    _inject(st, st, E_DX)
+    # the start states since t_s miss this fix: no replay starts there, and no later late
+    # fix is carried across it
+    for a in range(age - 1, -1, -1):
+        st[_rec(params, st, a) + R_STALE] = 1.0
+    st[_rec(params, st, 0) + R_XC_OK] = 0.0
+    return flag
 
 
 @njit
@@ -924,14 +1481,15 @@ def _validity(params: FloatArray, st: FloatArray, t_meas: float) -> float:
 
 @njit
 def _measure(
-    params: FloatArray, st: FloatArray, kind: int, t_meas: float, a: FloatArray, b: FloatArray
-) -> int:
-    """Fuse a measurement of ``kind`` valid at ``t_meas``: ``a`` the GPS position, the baro
-    height (``a[0]``) or the body field; ``b`` the GPS velocity (NaN: none)."""
+    params: FloatArray, st: FloatArray, kind: int, t_meas: float, a: FloatArray, a_at: int, b: FloatArray,
+    b_at: int,
+) -> int:  # fmt: skip
+    """Fuse a measurement of ``kind`` valid at ``t_meas``: ``a[a_at:]`` the GPS position, the
+    baro height (``a[a_at]``) or the body field; ``b[b_at:]`` the GPS velocity (NaN: none)."""
     if math.isnan(st[E_T]):
         return NOT_STARTED
     t = _validity(params, st, t_meas)
-    if math.isnan(t) or not _finite3(a):
+    if math.isnan(t) or not _finite3(a, a_at):
         st[E_N_BAD] += 1.0
         return BAD_INPUT
     if st[E_COUNT] == 0.0:
@@ -944,19 +1502,28 @@ def _measure(
     st[rec + _FLAG[kind]] = M_PENDING
     st[rec + _TAU[kind]] = tau
     if kind == _GPS:
-        use_vel = params[K_USE_VEL] > 0.5 and _finite3(b)
+        use_vel = params[K_USE_VEL] > 0.5 and _finite3(b, b_at)
         for i in range(3):
-            st[rec + R_GPS_POS + i] = a[i]
-            st[rec + R_GPS_VEL + i] = b[i] if use_vel else math.nan
+            st[rec + R_GPS_POS + i] = a[a_at + i]
+            st[rec + R_GPS_VEL + i] = b[b_at + i] if use_vel else math.nan
     elif kind == _BARO:
-        st[rec + R_BARO_Z] = a[0]
+        st[rec + R_BARO_Z] = a[a_at]
     else:
-        st[rec + R_MAG_FIELD : rec + R_MAG_FIELD + 3] = a
+        for i in range(3):
+            st[rec + R_MAG_FIELD + i] = a[a_at + i]
     if age == 0 and tau >= st[rec + R_DT]:
         # valid at the end of the newest interval, which is now: fuse into the present
-        flag = _apply(params, st, rec, kind, M_PENDING)
+        flag = _apply(params, st, rec, kind, M_PENDING, True)
         st[rec + _FLAG[kind]] = flag
+    elif kind == _GPS and tau == 0.0 and _carried(params, st, age):
+        flag = _fuse_late_gps(params, st, age)
     else:
+        while age < st[E_COUNT] and st[_rec(params, st, age) + R_STALE] != 0.0:
+            age += 1  # back to a start state that has every fix in it
+        if age >= st[E_COUNT]:
+            st[rec + _FLAG[kind]] = M_NONE
+            st[E_N_TOO_OLD] += 1.0
+            return TOO_OLD
         flag = _replay(params, st, age)
     if flag == M_ACCEPTED:
         return ACCEPTED
@@ -994,18 +1561,28 @@ def est_init(params: FloatArray, st: FloatArray, x0: FloatArray) -> None:
     st[E_T_FIX_SEEN] = -math.inf
     st[E_T_MAG_SEEN] = -math.inf
     st[E_HEAD] = -1.0
+    st[E_LOG_REC] = -1.0
 
 
 @njit
 def est_predict(params: FloatArray, st: FloatArray, t_s: float, gyro: FloatArray, accel: FloatArray) -> int:
     """One IMU tick to ``t_s``: the sample is taken as valid over (t, t_s]; a bad sample
     holds the last good one. The first call only sets the time."""
+    return _predict(params, st, t_s, gyro, 0, accel, 0)
+
+
+@njit
+def _predict(
+    params: FloatArray, st: FloatArray, t_s: float, gyro: FloatArray, g_at: int, accel: FloatArray, a_at: int
+) -> int:
+    """:func:`est_predict` with the sample at ``gyro[g_at:]``, ``accel[a_at:]``."""
     status = P_OK
-    if _finite3(gyro) and _finite3(accel):
-        st[E_GYRO_PREV : E_GYRO_PREV + 3] = st[E_GYRO : E_GYRO + 3]
-        st[E_ACCEL_PREV : E_ACCEL_PREV + 3] = st[E_ACCEL : E_ACCEL + 3]
-        st[E_GYRO : E_GYRO + 3] = gyro
-        st[E_ACCEL : E_ACCEL + 3] = accel
+    if _finite3(gyro, g_at) and _finite3(accel, a_at):
+        _copy(st, E_GYRO_PREV, E_GYRO, 3)
+        _copy(st, E_ACCEL_PREV, E_ACCEL, 3)
+        for i in range(3):
+            st[E_GYRO + i] = gyro[g_at + i]
+            st[E_ACCEL + i] = accel[a_at + i]
     else:
         status = P_BAD_IMU
         st[E_N_BAD_IMU] += 1.0
@@ -1014,8 +1591,8 @@ def est_predict(params: FloatArray, st: FloatArray, t_s: float, gyro: FloatArray
         st[E_T_FIX] = t_s
         st[E_T_FIX_GATED] = t_s
         st[E_T_MAG_OK] = t_s
-        st[E_GYRO_PREV : E_GYRO_PREV + 3] = st[E_GYRO : E_GYRO + 3]
-        st[E_ACCEL_PREV : E_ACCEL_PREV + 3] = st[E_ACCEL : E_ACCEL + 3]
+        _copy(st, E_GYRO_PREV, E_GYRO, 3)
+        _copy(st, E_ACCEL_PREV, E_ACCEL, 3)
         return P_FIRST
     dt = t_s - st[E_T]
     if not dt > 0.0:
@@ -1031,13 +1608,15 @@ def est_predict(params: FloatArray, st: FloatArray, t_s: float, gyro: FloatArray
     for i in range(3):
         st[rec + R_GYRO + i] = 0.5 * (st[E_GYRO_PREV + i] + st[E_GYRO + i])
         st[rec + R_ACCEL + i] = 0.5 * (st[E_ACCEL_PREV + i] + st[E_ACCEL + i])
-    st[rec + R_NOM0 : rec + R_NOM0 + N_NOM] = st[E_NOM : E_NOM + N_NOM]
-    st[rec + R_COV0 : rec + R_COV0 + N_COV] = st[E_COV : E_COV + N_COV]
+    _copy(st, rec + R_NOM0, E_NOM, N_NOM)
+    _pack_cov(st, rec + R_COV0)
     st[rec + R_GPS_FLAG] = M_NONE
     st[rec + R_BARO_FLAG] = M_NONE
     st[rec + R_MAG_FLAG] = M_NONE
-    _propagate(params, st, st[rec + R_GYRO : rec + R_GYRO + 3], st[rec + R_ACCEL : rec + R_ACCEL + 3],
-               dt)  # fmt: skip
+    st[rec + R_XC_OK] = 1.0
+    st[rec + R_STALE] = 0.0
+    st[rec + R_N_UPD] = 0.0
+    _propagate_rec(params, st, rec, dt)
     st[E_T] = t_s
     return status
 
@@ -1045,20 +1624,21 @@ def est_predict(params: FloatArray, st: FloatArray, t_s: float, gyro: FloatArray
 @njit
 def est_gps(params: FloatArray, st: FloatArray, t_fix: float, pos: FloatArray, vel: FloatArray) -> int:
     """Fuse a GPS fix valid at ``t_fix`` (<= now) at its validity time."""
-    return _measure(params, st, _GPS, t_fix, pos, vel)
+    return _measure(params, st, _GPS, t_fix, pos, 0, vel, 0)
 
 
 @njit
 def est_baro(params: FloatArray, st: FloatArray, t_meas: float, alt_m: float) -> int:
     """Fuse a barometric height above home valid at ``t_meas``."""
-    a = np.full(3, alt_m)
-    return _measure(params, st, _BARO, t_meas, a, a)
+    for i in range(3):
+        st[E_BARO_IN + i] = alt_m
+    return _measure(params, st, _BARO, t_meas, st, E_BARO_IN, st, E_BARO_IN)
 
 
 @njit
 def est_mag(params: FloatArray, st: FloatArray, t_meas: float, field_flu: FloatArray) -> int:
     """Fuse a magnetometer sample (body FLU, gauss) valid at ``t_meas`` as a heading."""
-    return _measure(params, st, _MAG, t_meas, field_flu, field_flu)
+    return _measure(params, st, _MAG, t_meas, field_flu, 0, field_flu, 0)
 
 
 @njit
@@ -1067,7 +1647,12 @@ def _check_divergence(params: FloatArray, st: FloatArray) -> None:
     is delivering has had no measurement inside its gate for ``divergence_s``."""
     t = st[E_T]
     lim = params[K_DIVERGENCE_S]
-    bad = not np.all(np.isfinite(st[E_NOM : E_COV + N_COV]))  # the nominal state and the covariance
+    # the nominal state and the covariance finite: a comparison false for NaN and inf,
+    # and-ed over the block without an early exit (a loop the compiler runs wide)
+    finite = True
+    for i in range(E_NOM, E_COV + N_COV):
+        finite &= abs(st[i]) <= _BIG
+    bad = not finite
     delivering = t - st[E_T_FIX_SEEN] <= params[K_GPS_TIMEOUT]
     if delivering and t - st[E_T_FIX_GATED] > lim:  # resets are not health
         bad = True
@@ -1081,13 +1666,17 @@ def _check_divergence(params: FloatArray, st: FloatArray) -> None:
 def est_output(st: FloatArray, x_out: FloatArray) -> None:
     """The 12-state estimate: position, body FLU velocity ``R^T v``, Euler angles, and the
     body rates as the gyro less its estimated bias."""
-    nom = st[E_NOM : E_NOM + N_NOM]
-    r = rot_from_quat(nom[N_Q : N_Q + 4])
+    nom = E_NOM
+    r = _qrot(_nom_quat(st))
+    v0, v1, v2 = st[nom + N_VEL], st[nom + N_VEL + 1], st[nom + N_VEL + 2]
     for i in range(3):
-        x_out[X_N + i] = nom[N_POS + i]
-        x_out[U_F + i] = r[0, i] * nom[N_VEL] + r[1, i] * nom[N_VEL + 1] + r[2, i] * nom[N_VEL + 2]
-        x_out[PHI + 3 + i] = st[E_GYRO + i] - nom[N_BG + i]
-    x_out[PHI], x_out[THETA], x_out[PSI] = euler_from_rot(r)
+        x_out[X_N + i] = st[nom + N_POS + i]
+        x_out[U_F + i] = r[i] * v0 + r[3 + i] * v1 + r[6 + i] * v2
+        x_out[PHI + 3 + i] = st[E_GYRO + i] - st[nom + N_BG + i]
+    # euler_from_rot's
+    x_out[PHI] = math.atan2(r[7], r[8])
+    x_out[THETA] = math.asin(max(-1.0, min(1.0, -r[6])))
+    x_out[PSI] = math.atan2(r[3], r[0])
 
 
 @njit
@@ -1098,15 +1687,14 @@ def est_tick(
     the new ones): predict with the IMU sample, fuse a new GPS fix, baro height and
     magnetometer heading at their validity times, write the estimate. Returns the GPS
     status (``NO_FIX`` when none was new)."""
-    est_predict(params, st, t_s, meas[OUT_GYRO : OUT_GYRO + 3], meas[OUT_ACCEL : OUT_ACCEL + 3])
+    _predict(params, st, t_s, meas, OUT_GYRO, meas, OUT_ACCEL)
     if params[K_USE_MAG] > 0.5 and mask & NEW_MAG:
-        est_mag(params, st, meas[OUT_MAG_T], meas[OUT_MAG : OUT_MAG + 3])
+        _measure(params, st, _MAG, meas[OUT_MAG_T], meas, OUT_MAG, meas, OUT_MAG)
     if params[K_USE_BARO] > 0.5 and mask & NEW_BARO:
         est_baro(params, st, meas[OUT_BARO_T], meas[OUT_BARO_ALT])
     status = NO_FIX
     if mask & NEW_GPS:
-        status = est_gps(params, st, meas[OUT_GPS_T], meas[OUT_GPS_POS : OUT_GPS_POS + 3],
-                         meas[OUT_GPS_VEL : OUT_GPS_VEL + 3])  # fmt: skip
+        status = _measure(params, st, _GPS, meas[OUT_GPS_T], meas, OUT_GPS_POS, meas, OUT_GPS_VEL)
     _check_divergence(params, st)
     est_output(st, x_out)
     return status
@@ -1116,59 +1704,97 @@ def est_tick(
 def log_tick(st: FloatArray, gps_status: int, row: FloatArray) -> None:
     """One row of :data:`~autopilot.estimation.log.EST_LOG_COLUMNS` for the tick just
     estimated."""
-    nom = st[E_NOM : E_NOM + N_NOM]
-    p = _cov(st)
-    r = rot_from_quat(nom[N_Q : N_Q + 4])
+    nom = E_NOM
+    r = _qrot(_nom_quat(st))
     fix = gps_status != NO_FIX
+    b0, b1, b2 = st[nom + N_BA], st[nom + N_BA + 1], st[nom + N_BA + 2]
     for i in range(3):
-        row[L_SD_POS + i] = math.sqrt(max(p[D_POS + i, D_POS + i], 0.0))
-        row[L_SD_VEL + i] = math.sqrt(max(p[D_VEL + i, D_VEL + i], 0.0))
-        row[L_BIAS + i] = r[i, 0] * nom[N_BA] + r[i, 1] * nom[N_BA + 1] + r[i, 2] * nom[N_BA + 2]
+        row[L_SD_POS + i] = math.sqrt(max(st[E_COV + (D_POS + i) * (N_ERR + 1)], 0.0))
+        row[L_SD_VEL + i] = math.sqrt(max(st[E_COV + (D_VEL + i) * (N_ERR + 1)], 0.0))
+        row[L_BIAS + i] = r[3 * i] * b0 + r[3 * i + 1] * b1 + r[3 * i + 2] * b2
         row[L_INNOV + i] = st[E_INNOV_POS + i] if fix else math.nan
-        row[L_SD_ATT + i] = math.sqrt(max(p[D_ATT + i, D_ATT + i], 0.0))
-        row[L_GYRO_BIAS + i] = nom[N_BG + i]
-        row[L_SD_GYRO_BIAS + i] = math.sqrt(max(p[D_BG + i, D_BG + i], 0.0))
-        row[L_ACCEL_BIAS + i] = nom[N_BA + i]
-        row[L_SD_ACCEL_BIAS + i] = math.sqrt(max(p[D_BA + i, D_BA + i], 0.0))
+        row[L_SD_ATT + i] = math.sqrt(max(st[E_COV + (D_ATT + i) * (N_ERR + 1)], 0.0))
+        row[L_GYRO_BIAS + i] = st[nom + N_BG + i]
+        row[L_SD_GYRO_BIAS + i] = math.sqrt(max(st[E_COV + (D_BG + i) * (N_ERR + 1)], 0.0))
+        row[L_ACCEL_BIAS + i] = st[nom + N_BA + i]
+        row[L_SD_ACCEL_BIAS + i] = math.sqrt(max(st[E_COV + (D_BA + i) * (N_ERR + 1)], 0.0))
     row[L_GPS_STATUS] = gps_status
     row[L_NIS] = st[E_NIS] if fix else math.nan
     row[L_SINCE_FIX] = st[E_T] - st[E_T_FIX]
     row[L_MAG_INNOV] = st[E_MAG_INNOV]
     row[L_MAG_NIS] = st[E_MAG_NIS]
     row[L_DIVERGED] = st[E_DIVERGED]
-    row[L_NEES:] = math.nan  # the truth's columns: filled where a simulation knows it
+    for i in range(L_NEES, row.size):  # the truth's columns: filled where a simulation knows it
+        row[i] = math.nan
 
 
 @njit
 def nav_error(st: FloatArray, x_true: FloatArray, gyro_bias_true: FloatArray, accel_bias_true: FloatArray,
-              err: FloatArray) -> None:  # fmt: skip
-    """The true error of the navigation states (the first ``N_NAV`` of the error state) from
-    the truth: ``d_theta = Log(R^T R_true)``, the velocity and position errors in earth
-    NWU, the bias errors. Only a simulation knows it: for NEES and tests."""
-    nom = st[E_NOM : E_NOM + N_NOM]
-    r = rot_from_quat(nom[N_Q : N_Q + 4])
-    rt = rot_body_to_earth(x_true[PHI], x_true[THETA], x_true[PSI])
-    d = r.T @ rt
-    c = max(-1.0, min(1.0, 0.5 * (d[0, 0] + d[1, 1] + d[2, 2] - 1.0)))
+              err: FloatArray, at: int = 0) -> None:  # fmt: skip
+    """The true error of the navigation states (the first ``N_NAV`` of the error state, into
+    ``err[at:]``) from the truth: ``d_theta = Log(R^T R_true)``, the velocity and position
+    errors in earth NWU, the bias errors. Only a simulation knows it: for NEES and tests."""
+    nom = E_NOM
+    r = _qrot(_nom_quat(st))
+    rt = _rot_euler(x_true[PHI], x_true[THETA], x_true[PSI])
+
+    def d(i: int, j: int) -> float:  # (R^T R_true)[i, j]
+        return r[i] * rt[j] + r[3 + i] * rt[3 + j] + r[6 + i] * rt[6 + j]
+
+    c = max(-1.0, min(1.0, 0.5 * (d(0, 0) + d(1, 1) + d(2, 2) - 1.0)))
     angle = math.acos(c)
     k = 0.5 if angle < 1e-8 else 0.5 * angle / math.sin(angle)
-    err[D_ATT] = k * (d[2, 1] - d[1, 2])
-    err[D_ATT + 1] = k * (d[0, 2] - d[2, 0])
-    err[D_ATT + 2] = k * (d[1, 0] - d[0, 1])
+    err[at + D_ATT] = k * (d(2, 1) - d(1, 2))
+    err[at + D_ATT + 1] = k * (d(0, 2) - d(2, 0))
+    err[at + D_ATT + 2] = k * (d(1, 0) - d(0, 1))
     for i in range(3):
-        v = rt[i, 0] * x_true[U_F] + rt[i, 1] * x_true[V_L] + rt[i, 2] * x_true[W_U]
-        err[D_VEL + i] = v - nom[N_VEL + i]
-        err[D_POS + i] = x_true[X_N + i] - nom[N_POS + i]
-        err[D_BG + i] = gyro_bias_true[i] - nom[N_BG + i]
-        err[D_BA + i] = accel_bias_true[i] - nom[N_BA + i]
+        v = rt[3 * i] * x_true[U_F] + rt[3 * i + 1] * x_true[V_L] + rt[3 * i + 2] * x_true[W_U]
+        err[at + D_VEL + i] = v - st[nom + N_VEL + i]
+        err[at + D_POS + i] = x_true[X_N + i] - st[nom + N_POS + i]
+        err[at + D_BG + i] = gyro_bias_true[i] - st[nom + N_BG + i]
+        err[at + D_BA + i] = accel_bias_true[i] - st[nom + N_BA + i]
 
 
 @njit
-def nees(st: FloatArray, err: FloatArray) -> float:
+def nees(st: FloatArray, err: FloatArray, at: int = 0) -> float:
     """The normalised estimation error squared of the navigation states,
-    ``e^T P_nav^-1 e`` with ``P_nav`` their block of the covariance (the marginal)."""
-    p = _cov(st)
-    return _cholesky_nis(p[:N_NAV, :N_NAV].copy(), err[:N_NAV].copy(), N_NAV)
+    ``e^T P_nav^-1 e`` (``e`` at ``err[at:]``) with ``P_nav`` their block of the covariance
+    (the marginal)."""
+    # Gaussian elimination of [[P_nav, e], [e^T, 0]]: its last pivot ends as -e^T P_nav^-1 e
+    # (the Schur complement), and an elimination without pivoting meets a pivot <= 0 where
+    # P_nav is not positive definite. The pivot row is taken off the rows below it from its
+    # diagonal on (the columns before it are done with), a loop the compiler runs wide.
+    m = N_NAV + 1
+    a = E_CHOL
+    for i in range(N_NAV):
+        for j in range(N_NAV):
+            st[a + i * m + j] = st[E_COV + i * N_ERR + j]
+        st[a + i * m + N_NAV] = err[at + i]
+        st[a + N_NAV * m + i] = err[at + i]
+    st[a + m * m - 1] = 0.0
+    for k in range(N_NAV):
+        d = st[a + k * m + k]
+        if d <= 0.0:
+            return math.inf
+        r = 1.0 / d
+        width = _wide(st, m - k)
+        for j in range(k + 1, m):
+            f = st[a + j * m + k] * r
+            for c in range(width):
+                st[a + j * m + k + c] -= f * st[a + k * m + k + c]
+    return -float(st[a + m * m - 1])
+
+
+@njit
+def truth_log(st: FloatArray, x_true: FloatArray, gyro_bias_true: FloatArray, accel_bias_true: FloatArray,
+              row: FloatArray) -> None:  # fmt: skip
+    """The log's truth columns: the NEES over the navigation states and the true attitude
+    and gyro-bias errors (the true error kept in the scratch ``E_ERR``)."""
+    nav_error(st, x_true, gyro_bias_true, accel_bias_true, st, E_ERR)
+    row[L_NEES] = nees(st, st, E_ERR)
+    for i in range(3):
+        row[L_ATT_ERR + i] = st[E_ERR + D_ATT + i]
+        row[L_GYRO_BIAS_ERR + i] = st[E_ERR + D_BG + i]
 
 
 @njit

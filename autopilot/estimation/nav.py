@@ -20,7 +20,6 @@ import numpy as np
 
 from autopilot.estimation import ins, kf
 from autopilot.estimation.config import EstimatorConfig
-from autopilot.estimation.log import L_ATT_ERR, L_GYRO_BIAS_ERR, L_NEES
 from heli_common.geo import GeoPoint
 from heli_common.jit import njit
 from heli_common.layout import Layout
@@ -109,12 +108,7 @@ def nav_truth(params: FloatArray, st: FloatArray, x_true: FloatArray, gyro_bias_
     NEES over its 15 navigation states and its true attitude error (NaN for ideal-ahrs)."""
     if params[H_KIND] != KIND_INS:
         return
-    err = np.empty(ins.N_ERR)
-    ins.nav_error(st, x_true, gyro_bias_true, accel_bias_true, err)
-    row[L_NEES] = ins.nees(st, err)
-    for i in range(3):
-        row[L_ATT_ERR + i] = err[ins.D_ATT + i]
-        row[L_GYRO_BIAS_ERR + i] = err[ins.D_BG + i]
+    ins.truth_log(st, x_true, gyro_bias_true, accel_bias_true, row)
 
 
 class NavStatus(NamedTuple):
