@@ -57,6 +57,7 @@ from heli_common.mavlink.udp import LOOPBACK, Message, mavlink2
 
 m2 = mavlink2
 ARDUPILOT_GUIDED, ARDUPILOT_LAND = 4, 9  # ArduCopter custom modes (Copter's mode numbers)
+ON_GROUND_M = 0.5  # armed, but less than this above the origin: ArduPilot must still take off
 # MAV_CMD_DO_AUX_FUNCTION (ardupilotmega.xml; not in the development dialect this bench uses)
 MAV_CMD_DO_AUX_FUNCTION = 218
 AUX_MOTOR_INTERLOCK = 32  # RC_Channel::AUX_FUNC::MOTOR_INTERLOCK
@@ -267,16 +268,37 @@ class GuidedFlight:
     def _hold(self, t: float) -> Target:
         return self._row(-1.0)  # before the start: the start point, at rest
 
+    def _in_guided(self) -> None:
+        """GUIDED, asked for again whenever the vehicle's heartbeat shows another mode: the
+        firmware reads its flight-mode switch when RC input first appears, which can put it
+        back in STABILIZE after a ground station set GUIDED (seen: it then armed in STABILIZE
+        and refused the take-off)."""
+        hb = self.gc.latest.get("HEARTBEAT")
+        if hb is None or not self.gc.from_vehicle(hb) or int(hb.custom_mode) != ARDUPILOT_GUIDED:
+            self.gc.set_mode(ARDUPILOT_GUIDED)
+
     def _take_off(self) -> None:
+        """GUIDED, armed (unless it is already), the interlock on, take-off to the start's height."""
         gc, start = self.gc, self._start_point()
-        self._retry("GUIDED mode", lambda: gc.set_mode(ARDUPILOT_GUIDED), 60.0)
-        gc.command_ok(MAV_CMD_DO_AUX_FUNCTION, [AUX_MOTOR_INTERLOCK, AUX_LOW])  # it arms with it low
-        self._retry("arming", gc.arm, 120.0)
-        self.say("armed (GUIDED); motor interlock on, rotor run-up")
+        self._retry("GUIDED mode", self._in_guided, 60.0)
+        if not gc.armed():
+            gc.command_ok(MAV_CMD_DO_AUX_FUNCTION, [AUX_MOTOR_INTERLOCK, AUX_LOW])  # it arms with it low
+
+            def arm() -> None:
+                self._in_guided()
+                gc.arm()
+
+            self._retry("arming", arm, 120.0)
+            self.say("armed (GUIDED); motor interlock on, rotor run-up")
         gc.command_ok(MAV_CMD_DO_AUX_FUNCTION, [AUX_MOTOR_INTERLOCK, AUX_HIGH])
         height, nan = -start[2], math.nan
         takeoff = [0.0, 0.0, 0.0, nan, nan, nan, height]
-        self._retry("take-off", lambda: gc.command_ok(m2.MAV_CMD_NAV_TAKEOFF, takeoff), 60.0)
+
+        def take_off() -> None:
+            self._in_guided()
+            gc.command_ok(m2.MAV_CMD_NAV_TAKEOFF, takeoff)
+
+        self._retry("take-off", take_off, 60.0)
         self.say(f"taking off to {height:.1f} m")
         self._pump(lambda: self._distance_up(start) < 0.5, 60.0, "take-off")
 
@@ -366,7 +388,8 @@ class GuidedFlight:
             lifted = f", flown {self.lift_m:.1f} m higher" if self.lift_m else ""
             self.say(f"trajectory of {self.traj.duration_s:.1f} s{lifted}; yaw held at "
                      f"{math.degrees(self._yaw_ned_rad):.1f} deg")  # fmt: skip
-            if gc.armed():  # already flying (a ground station took off before): to the start
+            on_ground = self.pos_ned_m is not None and self.pos_ned_m[2] > -ON_GROUND_M
+            if gc.armed() and not (self.ardupilot and on_ground):  # already flying: to the start
                 self._target = self._hold
                 gc.set_mode(ARDUPILOT_GUIDED if self.ardupilot else PX4_MAIN_OFFBOARD)
                 self.say("already armed: on to the start")

@@ -554,6 +554,37 @@ class TailServo:
 
 
 @dataclass(frozen=True)
+class RotorSpeedInput:
+    """Channel 8 (HeliRSC) at the rotor: an external governor (ArduPilot's ``H_RSC_MODE 2``,
+    "setpoint": the firmware ramps its output to ``H_RSC_SETPOINT`` and a governor in the ESC
+    or on the engine holds the speed). The output is read back over ``pwm_us`` (``SERVO8_MIN``
+    .. ``MAX``, ``reversed``); at ``idle`` (``H_RSC_IDLE``) or below the interlock is off and
+    the engine stops; above it the governor holds ``throttle / full_speed_throttle`` of the
+    design speed, all of it from ``full_speed_throttle`` (``H_RSC_SETPOINT``) up, as an
+    ESC's governor mode maps throttle to head speed."""
+
+    pwm_us: tuple[float, float] = spec("us", 500.0, 2500.0, default=(1000.0, 2000.0))
+    reversed: bool = spec(default=False)
+    idle: float = spec("", 0.0, 0.5, default=0.0)
+    full_speed_throttle: float = spec("", 0.05, 1.0, default=0.66)
+
+    def __post_init__(self) -> None:
+        if not self.pwm_us[0] < self.pwm_us[1]:
+            raise ValueError(f"pwm_us: {self.pwm_us[0]} must be below {self.pwm_us[1]}")
+        if not self.idle < self.full_speed_throttle:
+            raise ValueError(f"idle {self.idle} must be below full_speed_throttle {self.full_speed_throttle}")
+
+    def speed_fraction(self, pwm_us: float) -> tuple[float, bool, int]:
+        """``(fraction of the design speed the governor holds, interlock, refused)`` for a
+        channel 8 PWM; 0 with the interlock off (the engine stopped)."""
+        r = rsc_request(pwm_us, pwm_min_us=self.pwm_us[0], pwm_max_us=self.pwm_us[1], reversed=self.reversed,
+                        idle=self.idle)  # fmt: skip
+        if not r.interlock:
+            return 0.0, False, r.refused
+        return min(r.throttle / self.full_speed_throttle, 1.0), True, r.refused
+
+
+@dataclass(frozen=True)
 class PitchReading:
     """Blade pitches read from servo PWMs, in the bench's order ``(theta_m, theta_t, eps, eta)``
     [rad], with ``refused``: channels whose PWM was non-finite or outside the servo's travel, and
@@ -583,6 +614,7 @@ class Swashplate:
     head: Head = spec()
     tail: TailServo = spec()
     servo_azimuth_deg: tuple[float, float, float] | None = spec("deg", -180.0, 180.0, default=None)
+    rsc: RotorSpeedInput = spec(default=RotorSpeedInput())
 
     def __post_init__(self) -> None:
         if self.swash_type == "H3" and self.servo_azimuth_deg is None:
@@ -741,7 +773,9 @@ class Swashplate:
           4500``: the box around the circle ``H_CYC_MAX`` keeps the firmware's cyclic in;
         * tail: ``SERVO4_MIN..MAX`` span ``tail_theta_t_rad`` (the plant's limits), the end the
           firmware's nose-right yaw drives to giving the nose-right pitch: the lower one for
-          a counter-clockwise main rotor (this bench's default), the upper for a clockwise one.
+          a counter-clockwise main rotor (this bench's default), the upper for a clockwise one;
+        * rotor: ``SERVO8_MIN..MAX`` and ``SERVO8_REVERSED``, ``H_RSC_IDLE`` and
+          ``H_RSC_SETPOINT`` (:class:`RotorSpeedInput`).
         """
         ap = ArduPilotHeli.from_params(params)
         if main_rotor_rotation not in ROTATIONS:
@@ -782,5 +816,9 @@ class Swashplate:
         if ap.sw_type == SwashType.H3:
             p = ap.sw_h3_sv_pos_deg
             azimuth = (float(p[0]), float(p[1]), float(p[2]))
+        r = ap.rsc
+        rsc = RotorSpeedInput(pwm_us=(float(r.min_us), float(r.max_us)), reversed=r.reversed,
+                              idle=ap.rsc_idle_pct / 100.0,
+                              full_speed_throttle=ap.rsc_setpoint_pct / 100.0)  # fmt: skip
         return cls(name=name, swash_type=ap.sw_type.name, servos=servos, head=head, tail=tail,
-                   servo_azimuth_deg=azimuth)  # fmt: skip
+                   servo_azimuth_deg=azimuth, rsc=rsc)  # fmt: skip

@@ -8,11 +8,15 @@ truth after the step: body rates and specific force (FRD), position and velocity
 home) and the attitude quaternion. The firmware builds its own GPS, baro and compass from
 these.
 
-The rotor: ArduPilot's RSC output on channel 8 is read as the interlock. On the paper plant
-the rotor turns at its constant design speed whenever it is engaged (the paper's model has no
-rotor speed); with the interlock off the blades are held at zero pitch, so the rotor makes
-no thrust (``thrust_coeff`` is odd in the pitch). On Gavrilets' plant the governor holds its
-set speed from power-up and the interlock acts the same way (the run-up is not modelled).
+The rotor: ArduPilot's RSC output on channel 8 goes to the rotor through the head's
+:class:`~heli_common.swashplate.RotorSpeedInput` (an external governor). On Gavrilets' plant
+it is the governor's set point: with the interlock off the engine stops and the rotor winds
+down (it starts at rest when the plant starts on the ground), above it the governor follows
+the firmware's ramp to the design speed, and the blades make thrust only as fast as the rotor
+turns. On the paper plant, whose model has no rotor speed, the rotor turns at its constant
+design speed whenever the interlock is on; with it off the blades are held at zero pitch, so
+the rotor makes no thrust (``thrust_coeff`` is odd in the pitch). plant.csv records the rotor
+speed on both.
 
 The clock is the firmware's: this loop only answers; but a ground station streaming on that
 clock may join the lockstep through :mod:`heli_plant.pacer` (the physics waits for it).
@@ -34,7 +38,7 @@ import numpy as np
 
 from heli_common.ardupilot_json import json_state_from_plant
 from heli_common.state import N_PITCH, PITCH_NAMES, STATE_NAMES, FloatArray
-from heli_common.swashplate import Swashplate, rsc_request
+from heli_common.swashplate import Swashplate
 from heli_plant.ardupilot_link import ArduPilotJsonLink
 from heli_plant.model import Plant
 from heli_plant.pacer import Pacer
@@ -83,10 +87,11 @@ class ArduPilotBackend:
         self._interlock = False
         self._writer = None if record is None else csv.writer(record)
         if self._writer is not None:
-            self._writer.writerow(["t", *[n.split("_")[0] for n in STATE_NAMES], *PITCH_NAMES, "interlock"])
+            self._writer.writerow(["t", *[n.split("_")[0] for n in STATE_NAMES], *PITCH_NAMES, "interlock",
+                                   "rotor_rad_s"])  # fmt: skip
         self._next_record_s = 0.0
         self._last_key: tuple[int, ...] = ()
-        self._last: tuple[FloatArray, int, int, bool] = (np.zeros(N_PITCH), 0, 0, False)
+        self._last: tuple[FloatArray, int, int, bool, float] = (np.zeros(N_PITCH), 0, 0, False, 0.0)
 
     def _reset(self) -> None:
         self.plant = self._make_plant()
@@ -95,16 +100,18 @@ class ArduPilotBackend:
         self.stats.resets += 1
 
     def pitches_for(self, pwm_us: tuple[int, ...]) -> FloatArray:
-        """The blade pitches a frame's PWMs set (zero while the rotor's interlock is off)."""
+        """The blade pitches a frame's PWMs set (zero while the rotor's interlock is off); the
+        rotor plant's governor takes its set point from channel 8."""
         key = (*pwm_us[:4], pwm_us[CHANNEL_RSC - 1])
         if key != self._last_key:  # the firmware's outputs change at its 400 Hz loop, frames
             # come at 1200 Hz: two frames in three repeat the last PWMs
             reading = self.swash.pitches_from_pwm(np.asarray(pwm_us[:4], dtype=float))
-            rsc = rsc_request(float(pwm_us[CHANNEL_RSC - 1]))
-            pitches = reading.as_array() if rsc.interlock else np.zeros(N_PITCH)
-            self._last_key, self._last = key, (pitches, reading.refused + rsc.refused, reading.saturated,
-                                               rsc.interlock)  # fmt: skip
-        pitches, refused, saturated, interlock = self._last
+            speed, interlock, rsc_refused = self.swash.rsc.speed_fraction(float(pwm_us[CHANNEL_RSC - 1]))
+            pitches = reading.as_array() if interlock else np.zeros(N_PITCH)
+            self._last_key, self._last = key, (pitches, reading.refused + rsc_refused, reading.saturated,
+                                               interlock, speed)  # fmt: skip
+        pitches, refused, saturated, interlock, speed = self._last
+        self.plant.set_rotor_speed_command(speed * self.plant.rotor_design_speed_rad_s)
         self.stats.refused_pwm += refused
         if interlock:  # disarmed, the firmware parks the collective 1 us below the head's stop
             self.stats.saturated += saturated
@@ -128,7 +135,8 @@ class ArduPilotBackend:
         self.stats.t_s = self.t_s
         if self._writer is not None and self.t_s >= self._next_record_s - 1e-9:
             self._writer.writerow([f"{self.t_s:.6f}", *(f"{v:.6g}" for v in x1),
-                                   *(f"{v:.6g}" for v in p.u), int(self._interlock)])  # fmt: skip
+                                   *(f"{v:.6g}" for v in p.u), int(self._interlock),
+                                   f"{p.rotor_speed_rad_s:.6g}"])  # fmt: skip
             self._next_record_s += RECORD_PERIOD_S
         return json_state_from_plant(self.t_s, x1, f)
 

@@ -21,6 +21,8 @@ from heli_plant.world.model import (
     WP_DIST_KIND,
     WP_SERVOS_ON,
     WP_TURB_ON,
+    WS_GOVERNOR_SET,
+    WS_ROTOR,
     CalmArrays,
     WorldModel,
     world_plant_step,
@@ -61,7 +63,8 @@ class Plant:
     With the world's sensors on, :attr:`sensing` holds what they measured at :attr:`t_s`
     (sampled at the start and after every step of ``step_s``; GPS about ``home``).
     ``model`` (default: the paper's) chooses the plant: Gavrilets' rotor plant always runs
-    in a world (calm if none is given), its rotor starting in hover trim.
+    in a world (calm if none is given), its rotor starting in hover trim, or stopped
+    (``rotor_at_rest``: for a firmware that runs it up, :meth:`set_rotor_speed_command`).
     """
 
     def __init__(
@@ -75,6 +78,7 @@ class Plant:
         step_s: float = 0.01,
         home: GeoPoint = HOME,
         model: PlantModel | None = None,
+        rotor_at_rest: bool = False,
     ) -> None:
         if substeps < 1:
             raise ValueError("substeps must be >= 1")
@@ -88,7 +92,8 @@ class Plant:
         if self.model.rotor is not None:
             from heli_plant.trim import hover_rotor_state
 
-            r0 = np.array(hover_rotor_state(self.model, airframe))
+            trim = hover_rotor_state(self.model, airframe)
+            r0 = np.zeros(rotor.N_ROTOR) if rotor_at_rest else np.array(trim)
             self.world = WorldModel.build(self.world_config, airframe, self.x, self.model.rotor, r0)
         elif world is not None and world.on:
             self.world = WorldModel.build(world, airframe, self.x)
@@ -122,6 +127,33 @@ class Plant:
             self.rejected_commands += 1
             return False
         return True
+
+    @property
+    def rotor_design_speed_rad_s(self) -> float:
+        """The main rotor's design speed (the governor's set point unless commanded)."""
+        w = self.world
+        return w.rotor.omega_c if w is not None and w.rotor.on else self.airframe.main_rotor.speed_rad_s
+
+    def set_rotor_speed_command(self, omega_rad_s: float) -> bool:
+        """The governor's set point [rad/s] from now on; ``<= 0`` turns the engine off (the
+        governor disengaged, its integral reset) and the rotor winds down. False (nothing
+        changed) on the paper's plant, whose rotor speed is a constant, or for a non-finite
+        value."""
+        w = self.world
+        if w is None or not w.rotor.on or not np.isfinite(omega_rad_s):
+            return False
+        w.ws[WS_GOVERNOR_SET] = max(float(omega_rad_s), 0.0)
+        if omega_rad_s <= 0.0:
+            w.ws[WS_ROTOR + rotor.GOV_INT] = 0.0
+        return True
+
+    @property
+    def rotor_speed_rad_s(self) -> float:
+        """The main rotor's speed now (the design speed on the paper's plant)."""
+        w = self.world
+        if w is None or not w.rotor.on:
+            return self.airframe.main_rotor.speed_rad_s
+        return float(w.ws[WS_ROTOR + rotor.OMEGA_R])
 
     def _start_sensing(self) -> None:
         self.sensing = Sensing.build(self.world_config.sensors, self.step_s, self.constants.gravity_m_s2,

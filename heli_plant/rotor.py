@@ -23,6 +23,15 @@ kept by the world step after them (layout :data:`ROTOR_STATE`):
   fuselage feels ``-s Q_e`` and a yaw acceleration changes the relative speed);
 * the governor's integral of ``Omega_c - Omega`` [rad]: ``delta_t = kp e + ki int e`` in [0, 1].
 
+The governor's set point ``Omega_c`` is an input (the world state's, :meth:`heli_plant.model.
+Plant.set_rotor_speed_command`): the plant file's speed unless a rotor-speed controller moves
+it (ArduPilot's HeliRSC channel, :mod:`heli_plant.ardupilot_backend`); ``Omega_c <= 0`` is the
+engine off (no throttle, the integral held). Two additions to Gavrilets' model, which holds
+near the design speed only, make a run-up and a wind-down well posed: the engine's torque
+``P_max delta_t / max(Omega, Omega_clutch)`` is held at its value at half the design speed
+below it (a slipping centrifugal clutch, not a torque that grows without bound as the rotor
+stops), and a stopped rotor (``Omega <= 1 rad/s``) that nothing drives stays stopped.
+
 Loads (each from its own relative air velocity, ``V_a + omega x r``):
 
 * main rotor: thrust and torque from uniform-inflow momentum theory solved each step
@@ -59,6 +68,7 @@ OMEGA_R = ROTOR_STATE.offset("omega_rad_s")
 GOV_INT = ROTOR_STATE.offset("governor_int_rad")
 N_ROTOR = ROTOR_STATE.size
 OMEGA_MIN_RAD_S = 1.0  # below this the rotor has stopped: the numbers stay finite, the loads ~ 0
+CLUTCH_FRACTION = 0.5  # the engine's torque is held below this fraction of the design speed
 GROUND_EFFECT_MIN_Z_OVER_R = 0.5  # the formula's own limit of validity; closer, held there
 
 
@@ -87,7 +97,8 @@ class RotorConstants(NamedTuple):
     k_mu: float
     p_max: float
     i_rot: float
-    omega_c: float  # the governor's set point
+    omega_c: float  # the design speed: the governor's set point unless a command moves it
+    omega_clutch: float  # below it the engine's torque is held (the clutch slips)
     kp: float
     ki: float
     s_x: float
@@ -104,7 +115,7 @@ class RotorConstants(NamedTuple):
     ht_l: float
 
 
-OFF = RotorConstants._make((False, *([0.0] * 26), False, *([0.0] * 8)))
+OFF = RotorConstants._make((False, *([0.0] * 27), False, *([0.0] * 8)))
 
 
 def rotor_constants(rp: RotorPlant, af: Airframe) -> RotorConstants:
@@ -123,7 +134,8 @@ def rotor_constants(rp: RotorPlant, af: Airframe) -> RotorConstants:
         gear_tail=t.speed_rad_s / m.speed_rad_s, lock=fl.stabilizer_bar_lock_number,
         a_lon=fl.lon_gain_rad_per_rad, b_lat=fl.lat_gain_rad_per_rad, k_beta=fl.hub_stiffness_n_m_per_rad,
         k_mu=fl.blowback_k_mu, p_max=rp.engine.max_power_w, i_rot=rp.engine.rotating_inertia_kg_m2,
-        omega_c=m.speed_rad_s, kp=rp.governor.kp_per_rad_s, ki=rp.governor.ki_per_rad,
+        omega_c=m.speed_rad_s, omega_clutch=CLUTCH_FRACTION * m.speed_rad_s,
+        kp=rp.governor.kp_per_rad_s, ki=rp.governor.ki_per_rad,
         s_x=ae.fuselage_areas_m2[0], s_y=ae.fuselage_areas_m2[1], s_z=ae.fuselage_areas_m2[2],
         ground_effect=ae.ground_effect, fin_area=rp.fin.area_m2, fin_slope=rp.fin.lift_slope_per_rad,
         fin_l=rp.fin.behind_cg_m, fin_h=rp.fin.above_cg_m, fin_block=rp.fin.tail_rotor_blockage,
@@ -160,11 +172,12 @@ def in_main_wake(u_a: float, w_a: float, v_i: float, l_ht: float, r_m: float, h_
 @njit
 def rotor_loads(
     y: FloatArray, u: FloatArray, c: PlantConstants, g: RotorConstants, u_a: float, v_a: float, w_a: float,
-    lam_m_guess: float, lam_t_guess: float, n_state: int,
+    lam_m_guess: float, lam_t_guess: float, n_state: int, omega_c: float,
 ) -> tuple[FloatArray, FloatArray, FloatArray, float, float, float]:  # fmt: skip
     """(F [N], Q [N m] body FLU, rotor-state derivative, lam_m, lam_t, throttle) at the
     augmented state ``y`` (rigid body, then the rotor state at ``n_state``), blade pitches
-    ``u`` and c.g. air-relative velocity ``(u_a, v_a, w_a)`` [m/s FLU]."""
+    ``u``, c.g. air-relative velocity ``(u_a, v_a, w_a)`` [m/s FLU] and the governor's set
+    point ``omega_c`` [rad/s] (``<= 0``: the engine off)."""
     p, q, r = y[P_X], y[Q_Y], y[R_Z]
     a1, b1 = y[n_state + A1], y[n_state + B1]
     om = max(y[n_state + OMEGA_R], OMEGA_MIN_RAD_S)
@@ -205,10 +218,11 @@ def rotor_loads(
     f[1] += fy + fy_tr + fy_vf + fuy
     f[2] += fz + fz_ht + fuz
     # the governor's throttle and the engine's torque, whose reaction the fuselage takes
-    e = g.omega_c - om
-    raw = g.kp * e + g.ki * y[n_state + GOV_INT]
+    engine_on = omega_c > 0.0
+    e = omega_c - om
+    raw = g.kp * e + g.ki * y[n_state + GOV_INT] if engine_on else 0.0
     throttle = min(max(raw, 0.0), 1.0)
-    q_e = g.p_max * throttle / om
+    q_e = g.p_max * throttle / max(om, g.omega_clutch)
     mom = np.empty(3)
     # hub spring + thrust at the hub (r x F), tail rotor and fin at the tail, stabilizer
     mom[0] = g.k_beta * b1 - c.hm * fy - c.ht * fy_tr - g.fin_h * fy_vf
@@ -221,6 +235,8 @@ def rotor_loads(
     dr[A1] = -q - a1 * inv_tau + inv_tau * (g.a_lon * u[EPS] - dmu * um / tip_m)
     dr[B1] = -p - b1 * inv_tau + inv_tau * (g.b_lat * u[ETA] + dmu * vm / tip_m)
     dr[OMEGA_R] = (q_e - qm - g.gear_tail * qt) / g.i_rot
+    if y[n_state + OMEGA_R] <= OMEGA_MIN_RAD_S and dr[OMEGA_R] < 0.0:
+        dr[OMEGA_R] = 0.0  # stopped: the drag that is left cannot turn it backwards
     winding = (raw >= 1.0 and e > 0.0) or (raw <= 0.0 and e < 0.0)
-    dr[GOV_INT] = 0.0 if winding else e
+    dr[GOV_INT] = 0.0 if winding or not engine_on else e
     return f, mom, dr, lam_m, lam_t, throttle

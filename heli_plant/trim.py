@@ -44,6 +44,7 @@ from heli_plant import rotor
 from heli_plant.world.model import (
     CALM_AIR,
     N_WS,
+    WS_GOVERNOR_SET,
     WS_LAM_MAIN,
     WS_LAM_TAIL,
     derivative_in_air,
@@ -83,6 +84,7 @@ class PlantFunction:
     def __call__(self, x: FloatArray, u: FloatArray) -> FloatArray:
         ws = np.zeros(N_WS)
         ws[WS_LAM_MAIN] = ws[WS_LAM_TAIL] = 0.05
+        ws[WS_GOVERNOR_SET] = self.rotor.omega_c
         return derivative_in_air(0.0, np.asarray(x, dtype=float), np.asarray(u, dtype=float), self.constants,
                                  CALM_AIR, np.zeros(3), self.wp, ws, self.rotor)  # fmt: skip
 
@@ -91,8 +93,9 @@ class PlantFunction:
         if not self.rotor.on:
             return math.nan
         v = x[U_F : W_U + 1]
+        g = self.rotor
         return rotor.rotor_loads(np.asarray(x, dtype=float), np.asarray(u, dtype=float), self.constants,
-                                 self.rotor, v[0], v[1], v[2], 0.05, 0.05, N_STATE)[5]  # fmt: skip
+                                 g, v[0], v[1], v[2], 0.05, 0.05, N_STATE, g.omega_c)[5]  # fmt: skip
 
 
 @dataclass(frozen=True)

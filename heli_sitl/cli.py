@@ -260,8 +260,9 @@ def _run_ardupilot_json(args: argparse.Namespace) -> int:
 
     def make_plant() -> Plant:
         # the firmware's frame period (1200 Hz) is the sensors' sampling step, where a world has any
+        # on the ground the rotor starts at rest: the firmware's RSC runs it up (channel 8)
         return Plant(airframe, x0, substeps=args.plant_substeps, world=world, step_s=1.0 / 1200.0, home=home,
-                     model=model)  # fmt: skip
+                     model=model, rotor_at_rest=not args.in_air)  # fmt: skip
 
     try:
         link = ArduPilotJsonLink(port)

@@ -122,6 +122,9 @@ def main(out: Path, plant: str) -> int:
         pump(0.5)
         interlock(False)  # it must be low to arm
         for _ in range(120):  # arming waits for the EKF to align and take the GPS: retry
+            if res["modes"][-1:] != [GUIDED]:  # the firmware's mode switch, read when RC input
+                # first appears, can undo a GUIDED set before: then it would arm in STABILIZE
+                conn.mav.set_mode_send(1, mavutil.mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, GUIDED)
             conn.mav.command_long_send(1, 1, mavutil.mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, *[0] * 6)
             pump(0.5)
             if res.get("armed"):

@@ -151,3 +151,45 @@ def test_the_interlock_holds_the_blades_at_zero_pitch() -> None:
         low[7] = RSC_ON
         be.pitches_for(tuple(low))
         assert be.stats.saturated >= 1
+
+
+def test_channel_8_runs_the_rotor_plant_up_and_winds_it_down() -> None:
+    """Gavrilets' plant, started on the ground at rest: the interlock off keeps the rotor
+    stopped; ArduPilot's ramp (H_RSC_MODE 2: 0 -> H_RSC_SETPOINT 66 % over H_RSC_RAMP_TIME 1 s)
+    runs it up to the design speed, half the set point holds half of it, and the interlock
+    off again stops the engine: the rotor winds down on its drag."""
+    from heli_common.plant_model import PlantModel
+
+    airframe, x0, _ = load_vehicle("paper", on_ground=True)
+    swash = Swashplate.load("swashplate/xcell60-h3-120.toml")
+    model = PlantModel.load("gavrilets")
+    dt = 1.0 / RATE_HZ
+    with ArduPilotJsonLink(free_udp_port()) as link:
+        at_rest = lambda: Plant(airframe, x0, step_s=dt, model=model, rotor_at_rest=True)  # noqa: E731
+        be = ArduPilotBackend(at_rest, swash, link)
+        p = be.plant
+        design = p.rotor_design_speed_rad_s
+        assert design == pytest.approx(167.0) and p.rotor_speed_rad_s == 0.0
+
+        def fly(seconds: float, rsc_us: float | None = None, ramp_to_us: float | None = None) -> None:
+            n = round(seconds * RATE_HZ)
+            for k in range(n):
+                ramp = min(k / RATE_HZ, 1.0)
+                us = rsc_us if ramp_to_us is None else RSC_OFF + (ramp_to_us - RSC_OFF) * ramp
+                pwm = [1375] * 3 + [1500] * 13  # flat pitch: theta_m = 0.10 - 125 us x 0.0008 rad/us
+                pwm[7] = round(us if us is not None else RSC_OFF)
+                be.step(tuple(pwm), dt)
+
+        fly(1.0, RSC_OFF)
+        assert p.rotor_speed_rad_s == 0.0 and not p.u.any()
+        fly(6.0, ramp_to_us=RSC_ON)  # the firmware's 1 s ramp, then 5 s at the set point
+        assert p.rotor_speed_rad_s == pytest.approx(design, rel=2e-3)
+        assert p.u[0] == pytest.approx(0.0, abs=1e-9)  # the blades follow the servos once engaged
+        fly(5.0, (RSC_OFF + RSC_ON) / 2)  # half the set point: half the speed
+        assert p.rotor_speed_rad_s == pytest.approx(design / 2, rel=2e-3)
+        fly(5.0, RSC_OFF)  # engine off: 83.5 -> 47.5 rad/s on the blades' profile drag
+        assert p.rotor_speed_rad_s == pytest.approx(47.5, rel=0.05)
+        assert p.world is not None and p.world.rotor_truth[3] == 0.0  # no throttle
+        # the paper's plant has no rotor speed: channel 8 gates the pitches only
+        paper = Plant(airframe, x0, step_s=dt)
+        assert not paper.set_rotor_speed_command(0.0) and paper.rotor_speed_rad_s == pytest.approx(167.0)

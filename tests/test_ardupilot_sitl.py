@@ -85,6 +85,16 @@ def test_ardupilot_flies_the_paper_plant_and_the_rotor_plant(tmp_path: Path) -> 
         rms = float(np.sqrt(np.mean(err**2)))
         print(f"{plant}: hover over 15 s: RMS {rms:.3f} m, max {err.max():.3f} m")
         assert err.max() < 0.1 and rms < 0.06  # twice the worst measured (0.048, 0.029 m)
+        rotor = truth["rotor_rad_s"]  # the governor follows channel 8 on the rotor plant
+        on = truth["interlock"] > 0.5
+        print(f"{plant}: rotor {rotor[0]:.1f} rad/s at the start, {rotor[k0]:.1f} at take-off, "
+              f"{rotor[hover].min():.1f}..{rotor[hover].max():.1f} in the hover, {rotor[-1]:.1f} at the end")
+        if plant == "gavrilets":  # at rest, run up by the firmware's ramp after the interlock, held
+            assert rotor[0] == 0.0 and rotor[: int(np.argmax(on))].max() < 1.0
+            assert np.abs(rotor[hover] - 167.0).max() < 1.0 and rotor[k0] > 160.0
+            assert not on[-1] and rotor[-1] < rotor[hover].min() - 2.0  # disarmed: winding down
+        else:
+            assert np.all(rotor == 167.0)  # the paper's plant: the design speed, a constant
         mavproxy = str(res["mavproxy"])  # MAVProxy, a second ground station, while it flew
         assert "Mode GUIDED" in mavproxy and re.search(r"Received \d{3,} parameters", mavproxy), mavproxy
         for name, value in (("H_SW_TYPE", 3), ("FRAME_CLASS", 6)):

@@ -140,7 +140,8 @@ def test_energy_balance_of_the_rigid_body(hover: tuple[PlantFunction, np.ndarray
         dw = dx[P_X : R_Z + 1]
         jdw = np.array([c.ixx * dw[0] - c.ixz * dw[2], c.iyy * dw[1], -c.ixz * dw[0] + c.izz * dw[2]])
         de = c.mass_kg * v @ dx[U_F : W_U + 1] + w @ jdw + c.mass_kg * c.gravity_m_s2 * dx[Z_U]
-        f, q, *_ = rotor.rotor_loads(x, u0, c, fn.rotor, v[0], v[1], v[2], 0.05, 0.05, N_STATE)
+        g = fn.rotor
+        f, q, *_ = rotor.rotor_loads(x, u0, c, g, v[0], v[1], v[2], 0.05, 0.05, N_STATE, g.omega_c)
         grav = gravity_flu(x, c)
         power = v @ (f - grav) + w @ q
         assert de == pytest.approx(power, rel=1e-9, abs=1e-9)

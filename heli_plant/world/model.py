@@ -109,6 +109,7 @@ WORLD_STATE = Layout(
     ("turb", wind.N_DRYDEN_STATE),  # the Dryden filters' state
     ("rotor", rotor.N_ROTOR),  # the rotor plant's own states
     ("throttle", 1),  # the governor's throttle of the last sub-step [0, 1]
+    ("governor_setpoint_rad_s", 1),  # the rotor plant's governor set point (<= 0: engine off)
 )
 WS_STEP = WORLD_STATE.offset("step")
 WS_LAM_MAIN = WORLD_STATE.offset("lam_main")
@@ -118,6 +119,7 @@ WS_PITCH = WORLD_STATE.offset("pitch_rad")
 WS_TURB = WORLD_STATE.offset("turb")
 WS_ROTOR = WORLD_STATE.offset("rotor")
 WS_THROTTLE = WORLD_STATE.offset("throttle")
+WS_GOVERNOR_SET = WORLD_STATE.offset("governor_setpoint_rad_s")
 N_WS = WORLD_STATE.size
 
 
@@ -182,7 +184,7 @@ def derivative_in_air(
     u_a, v_a, w_a = air_relative_flu(x, rt, w_nwu)
     if g.on:
         f, q, dr, _, _, _ = rotor.rotor_loads(x, u, c, g, u_a, v_a, w_a, ws[WS_LAM_MAIN], ws[WS_LAM_TAIL],
-                                              N_STATE)  # fmt: skip
+                                              N_STATE, ws[WS_GOVERNOR_SET])  # fmt: skip
         return _with_disturbance(t, x, f, q, c, wp, dr, g.rot)
     if a.inflow:
         tm, qm, tt, qt, lam_m, _ = air.rotor_loads_in_air(
@@ -264,8 +266,9 @@ def world_plant_step(
         if g.on:  # the next solves start from this step's inflow; the throttle, for the record
             rt = rot_body_to_earth(y[PHI], y[THETA], y[PSI])
             u_a, v_a, w_a = air_relative_flu(y, rt, w_nwu)
-            _, _, _, lam_m, lam_t, thr = rotor.rotor_loads(y, u, c, g, u_a, v_a, w_a, ws[WS_LAM_MAIN],
-                                                           ws[WS_LAM_TAIL], N_STATE)  # fmt: skip
+            lam_m0, lam_t0 = ws[WS_LAM_MAIN], ws[WS_LAM_TAIL]
+            _, _, _, lam_m, lam_t, thr = rotor.rotor_loads(y, u, c, g, u_a, v_a, w_a, lam_m0, lam_t0, N_STATE,
+                                                           ws[WS_GOVERNOR_SET])  # fmt: skip
             ws[WS_LAM_MAIN], ws[WS_LAM_TAIL], ws[WS_THROTTLE] = lam_m, lam_t, thr
         elif a.inflow:  # the next solve starts from this step's inflow
             _, _, _, _, lam_m, lam_t = _inflow_now(y, u, c, a, w_nwu, ws)
@@ -403,6 +406,7 @@ class WorldModel:
                 raise ValueError("the rotor plant needs its initial rotor state")
             ws[WS_ROTOR : WS_ROTOR + N_ROTOR] = rotor_state0
             ws[WS_THROTTLE] = min(max(g.ki * rotor_state0[rotor.GOV_INT], 0.0), 1.0)  # at its set speed
+            ws[WS_GOVERNOR_SET] = g.omega_c
         return cls(world, af, c, a, wp, ws, np.zeros(wind.N_DRYDEN_COEFFS), np.zeros((N_PITCH, 1)),
                    np.zeros(1), np.asarray(x0, dtype=float), rotor=g)  # fmt: skip
 
