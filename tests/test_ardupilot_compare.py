@@ -17,7 +17,7 @@ from netns import unshare_reason
 from heli_sitl.ardupilot import FirmwareNotFoundError, find_firmware
 from heli_sitl.comparison import FIRMWARE_NOTE
 
-pytestmark = [pytest.mark.slow, pytest.mark.processes]
+pytestmark = [pytest.mark.slow, pytest.mark.netns]
 ROOT = Path(__file__).resolve().parent.parent
 
 COMPARE = """

@@ -670,7 +670,7 @@ def _firmware_namespace_main(work: Path, parent_netns: str, speedup: int) -> int
     return 0
 
 
-@pytest.mark.processes
+@pytest.mark.netns
 @pytest.mark.slow
 def test_real_arducopter_heli_steps_in_lockstep(tmp_path: Path) -> None:
     """ArduPilot's own helicopter firmware against a minimal peer (a vehicle at rest at

@@ -23,7 +23,7 @@ from heli_sitl.ardupilot import FirmwareNotFoundError, find_firmware
 from heli_sitl.guided_record import guided_record
 from heli_sitl.scorecard import score
 
-pytestmark = [pytest.mark.slow, pytest.mark.processes]
+pytestmark = [pytest.mark.slow, pytest.mark.netns]
 SCRIPT = Path(__file__).resolve().parent / "ardupilot_flight.py"
 
 

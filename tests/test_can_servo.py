@@ -597,7 +597,7 @@ def _udp_namespace_main(out: Path, parent_netns: str) -> int:
                 p.kill()
 
 
-@pytest.mark.processes
+@pytest.mark.netns
 @pytest.mark.slow
 def test_two_processes_over_udp_multicast_in_private_netns(tmp_path: Path) -> None:
     """Sender and servo endpoint in two processes on one host: udp_multicast on the IPv4
