@@ -273,6 +273,8 @@ FILTER = Layout(
     ("ph", MAX_Y * N_ERR),  # P h of each scalar update of a measurement (P before it)
     ("g", MAX_Y * N_ERR),  # P h / sqrt(S) of each: P loses g g^T
     ("unit", MAX_Y),  # where each row of H has its 1 besides the attitude (-1: elsewhere too)
+    ("nz", MAX_Y * N_ERR),  # the columns where each row of H is not zero, in order
+    ("nz_n", MAX_Y),  # how many
     ("dx", N_ERR),  # the error mean of an update
     ("hm", MAX_Y * N_ERR),  # the rows of H, row-major
     ("y", MAX_Y),  # the innovations of one measurement
@@ -334,6 +336,8 @@ E_F_BLOCKS = FILTER.offset("f_blocks")
 E_PH = FILTER.offset("ph")
 E_G = FILTER.offset("g")
 E_UNIT = FILTER.offset("unit")
+E_NZ = FILTER.offset("nz")
+E_NZ_N = FILTER.offset("nz_n")
 E_R = FILTER.offset("r")
 E_S_UPD = FILTER.offset("s_upd")
 E_S_DIAG = FILTER.offset("s_diag")
@@ -730,9 +734,26 @@ def _apply_f(st: FloatArray, x: int, n: int, ncols: int, fbs: FloatArray, fb: in
         st[att + 2 * n + j] = rw2 * a0 + rw5 * a1 + rw8 * a2 - dt * g2
 
 
-# the error-state blocks F changes (the others it holds: F's identity there)
+# the error-state blocks F changes (the others it holds: F's identity there): the
+# attitude, velocity and position blocks are one run of rows, the wander another
 _CHANGED = (D_ATT, D_VEL, D_POS, D_GW)
 _HELD = (D_BG, D_BA, D_BM)
+assert D_VEL == D_ATT + 3 and D_POS == D_VEL + 3 and D_BG == D_POS + 3 and D_BM == D_GW + 3 == N_ERR - 3
+_N_CHANGED = 3 * len(_CHANGED)
+
+
+@njit
+def _changed(k: int) -> int:
+    """The error-state index of the ``k``-th row F changes (attitude to position, then the
+    wander)."""
+    return D_ATT + k if k < D_BG - D_ATT else D_GW + k - (D_BG - D_ATT)
+
+
+@njit
+def _held(k: int) -> int:
+    """The error-state index of the ``k``-th row F holds (the biases, then the compass
+    offset)."""
+    return D_BG + k if k < D_GW - D_BG else D_BM + k - (D_GW - D_BG)
 
 
 @njit
@@ -743,7 +764,9 @@ def _f_rows(st: FloatArray, fbs: FloatArray, fb: int, dt: float) -> None:
     the row, as to a column in :func:`_apply_f`), symmetrised; the rows of the held blocks
     take their columns from the rows of the changed ones (``(F P F^T)[u, c] = (F P)[c,
     u]``). For a symmetric P this is bit for bit the average of ``F (F P)^T`` with its
-    transpose, at a third of the work."""
+    transpose, at a third of the work. The rows are walked with plain counters
+    (:func:`_changed`, :func:`_held`), not tuples of blocks: a loop over a tuple is
+    unrolled into scalar code, three times slower here."""
     fb = _nn(fb)
     rw0, rw1, rw2, rw3, rw4, rw5, rw6, rw7, rw8 = _block(fbs, fb + F_RW)
     va0, va1, va2, va3, va4, va5, va6, va7, va8 = _block(fbs, fb + F_M_VA)
@@ -751,47 +774,42 @@ def _f_rows(st: FloatArray, fbs: FloatArray, fb: int, dt: float) -> None:
     vg0, vg1, vg2, vg3, vg4, vg5, vg6, vg7, vg8 = _block(fbs, fb + F_M_VG)
     hdt = 0.5 * dt
     decay = fbs[fb + F_DECAY]
-    for blk in _CHANGED:
-        for i in range(3):
-            row = E_COV + (blk + i) * N_ERR
-            a0, a1, a2 = st[row + D_ATT], st[row + D_ATT + 1], st[row + D_ATT + 2]
-            g0, g1, g2 = st[row + D_BG], st[row + D_BG + 1], st[row + D_BG + 2]
-            b0, b1, b2 = st[row + D_BA], st[row + D_BA + 1], st[row + D_BA + 2]
-            inc0 = (va0 * a0 + va1 * a1 + va2 * a2 - rd0 * b0 - rd1 * b1 - rd2 * b2
-                    + vg0 * g0 + vg1 * g1 + vg2 * g2)  # fmt: skip
-            inc1 = (va3 * a0 + va4 * a1 + va5 * a2 - rd3 * b0 - rd4 * b1 - rd5 * b2
-                    + vg3 * g0 + vg4 * g1 + vg5 * g2)  # fmt: skip
-            inc2 = (va6 * a0 + va7 * a1 + va8 * a2 - rd6 * b0 - rd7 * b1 - rd8 * b2
-                    + vg6 * g0 + vg7 * g1 + vg8 * g2)  # fmt: skip
-            v0, v1, v2 = st[row + D_VEL], st[row + D_VEL + 1], st[row + D_VEL + 2]
-            st[row + D_VEL] = v0 + inc0
-            st[row + D_VEL + 1] = v1 + inc1
-            st[row + D_VEL + 2] = v2 + inc2
-            st[row + D_POS] = st[row + D_POS] + dt * v0 + hdt * inc0
-            st[row + D_POS + 1] = st[row + D_POS + 1] + dt * v1 + hdt * inc1
-            st[row + D_POS + 2] = st[row + D_POS + 2] + dt * v2 + hdt * inc2
-            st[row + D_GW] *= decay
-            st[row + D_GW + 1] *= decay
-            st[row + D_GW + 2] *= decay
-            st[row + D_ATT] = rw0 * a0 + rw3 * a1 + rw6 * a2 - dt * g0
-            st[row + D_ATT + 1] = rw1 * a0 + rw4 * a1 + rw7 * a2 - dt * g1
-            st[row + D_ATT + 2] = rw2 * a0 + rw5 * a1 + rw8 * a2 - dt * g2
-    for bi in range(len(_CHANGED)):  # the changed blocks among themselves: symmetrised
-        for bj in range(bi, len(_CHANGED)):
-            for i in range(3):
-                r = _CHANGED[bi] + i
-                for j in range(i + 1 if bj == bi else 0, 3):
-                    c = _CHANGED[bj] + j
-                    m = 0.5 * (st[E_COV + r * N_ERR + c] + st[E_COV + c * N_ERR + r])
-                    st[E_COV + r * N_ERR + c] = m
-                    st[E_COV + c * N_ERR + r] = m
-    for u0 in _HELD:  # the held rows, from the changed rows' columns
-        for i in range(3):
-            u = u0 + i
-            for c0 in _CHANGED:
-                for j in range(3):
-                    c = c0 + j
-                    st[E_COV + u * N_ERR + c] = st[E_COV + c * N_ERR + u]
+    for k in range(_N_CHANGED):
+        row = E_COV + _changed(k) * N_ERR
+        a0, a1, a2 = st[row + D_ATT], st[row + D_ATT + 1], st[row + D_ATT + 2]
+        g0, g1, g2 = st[row + D_BG], st[row + D_BG + 1], st[row + D_BG + 2]
+        b0, b1, b2 = st[row + D_BA], st[row + D_BA + 1], st[row + D_BA + 2]
+        inc0 = (va0 * a0 + va1 * a1 + va2 * a2 - rd0 * b0 - rd1 * b1 - rd2 * b2
+                + vg0 * g0 + vg1 * g1 + vg2 * g2)  # fmt: skip
+        inc1 = (va3 * a0 + va4 * a1 + va5 * a2 - rd3 * b0 - rd4 * b1 - rd5 * b2
+                + vg3 * g0 + vg4 * g1 + vg5 * g2)  # fmt: skip
+        inc2 = (va6 * a0 + va7 * a1 + va8 * a2 - rd6 * b0 - rd7 * b1 - rd8 * b2
+                + vg6 * g0 + vg7 * g1 + vg8 * g2)  # fmt: skip
+        v0, v1, v2 = st[row + D_VEL], st[row + D_VEL + 1], st[row + D_VEL + 2]
+        st[row + D_VEL] = v0 + inc0
+        st[row + D_VEL + 1] = v1 + inc1
+        st[row + D_VEL + 2] = v2 + inc2
+        st[row + D_POS] = st[row + D_POS] + dt * v0 + hdt * inc0
+        st[row + D_POS + 1] = st[row + D_POS + 1] + dt * v1 + hdt * inc1
+        st[row + D_POS + 2] = st[row + D_POS + 2] + dt * v2 + hdt * inc2
+        st[row + D_GW] *= decay
+        st[row + D_GW + 1] *= decay
+        st[row + D_GW + 2] *= decay
+        st[row + D_ATT] = rw0 * a0 + rw3 * a1 + rw6 * a2 - dt * g0
+        st[row + D_ATT + 1] = rw1 * a0 + rw4 * a1 + rw7 * a2 - dt * g1
+        st[row + D_ATT + 2] = rw2 * a0 + rw5 * a1 + rw8 * a2 - dt * g2
+    for k in range(_N_CHANGED):  # the changed rows among themselves: symmetrised
+        r = _changed(k)
+        for kc in range(k + 1, _N_CHANGED):
+            c = _changed(kc)
+            m = 0.5 * (st[E_COV + r * N_ERR + c] + st[E_COV + c * N_ERR + r])
+            st[E_COV + r * N_ERR + c] = m
+            st[E_COV + c * N_ERR + r] = m
+    for k in range(N_ERR - _N_CHANGED):  # the held rows, from the changed rows' columns
+        u = _held(k)
+        for kc in range(_N_CHANGED):
+            c = _changed(kc)
+            st[E_COV + u * N_ERR + c] = st[E_COV + c * N_ERR + u]
 
 
 @njit
@@ -862,29 +880,33 @@ def _prepare(st: FloatArray, m: int) -> float:
     _zero(st, E_DX, N_ERR)
     nis = 0.0
     for i in range(m):
-        h, ph = E_HM + i * N_ERR, E_PH + i * N_ERR
+        h, ph, nz = E_HM + i * N_ERR, E_PH + i * N_ERR, E_NZ + i * N_ERR
         for c in range(n):
             st[ph + c] = 0.0
         innov = st[E_Y + i]
         unit = -1  # the row's shape, for the log: h_att + a single 1
         fits = True
+        n_nz = 0
         for j in range(N_ERR):
             hj = st[h + j]
             if hj != 0.0:  # H rows are sparse: a few ones or a heading Jacobian
+                st[nz + n_nz] = j
+                n_nz += 1
                 innov -= hj * st[E_DX + j]
                 for c in range(n):  # row j of P: its column j (P is symmetric)
                     st[ph + c] += st[E_COV + j * N_ERR + c] * hj
                 if not D_ATT <= j < D_ATT + 3:
                     fits = fits and hj == 1.0 and unit < 0
                     unit = j
+        st[E_NZ_N + i] = n_nz
         st[E_UNIT + i] = unit if fits else -1.0
-        st[E_S_DIAG + i] = _sparse_dot(st, h, ph) + st[E_R + i]
+        st[E_S_DIAG + i] = _sparse_dot(st, i, ph) + st[E_R + i]
         for k in range(i):  # what the updates before took off P h_i
             phk = E_PH + k * N_ERR
-            f = _sparse_dot(st, h, phk) / st[E_S_UPD + k]
+            f = _sparse_dot(st, i, phk) / st[E_S_UPD + k]
             for c in range(n):
                 st[ph + c] -= st[phk + c] * f
-        s = _sparse_dot(st, h, ph) + st[E_R + i]
+        s = _sparse_dot(st, i, ph) + st[E_R + i]
         st[E_S_UPD + i] = s
         st[E_NU + i] = innov
         nis += innov * innov / s
@@ -895,12 +917,15 @@ def _prepare(st: FloatArray, m: int) -> float:
 
 
 @njit
-def _sparse_dot(st: FloatArray, h: int, x: int) -> float:
-    """``h . x`` for a sparse row ``h`` (at ``st[h:]``) and ``x`` at ``st[x:]``."""
+def _sparse_dot(st: FloatArray, i: int, x: int) -> float:
+    """``h_i . x`` for row ``i`` of H (scratch ``E_HM``) and ``x`` at ``st[x:]``, over the
+    columns :func:`_prepare` found it not zero in (in their order: the sum of the scan of
+    the whole row, without the scan)."""
+    h, nz = E_HM + i * N_ERR, E_NZ + i * N_ERR
     v = 0.0
-    for j in range(N_ERR):
-        if st[h + j] != 0.0:
-            v += st[h + j] * st[x + j]
+    for k in range(int(st[E_NZ_N + i])):
+        j = int(st[nz + k])
+        v += st[h + j] * st[x + j]
     return v
 
 
