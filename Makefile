@@ -28,7 +28,7 @@ test: lint
 	$(BIN)/python -m heli_sitl.warmup
 	# two or more workers; the process tests share one of them (tests/conftest.py); the ten
 	# slowest tests printed at the end
-	$(BIN)/pytest -q -n auto --maxprocesses 4 --dist loadgroup --durations 10
+	$(BIN)/pytest -q -n auto --maxprocesses 4 --dist loadfile --durations 10
 
 # prints the table and writes it into README.md's performance section (nothing copied by hand)
 bench: $(STAMP)

@@ -33,15 +33,15 @@ settings.register_profile("heli", deadline=None)
 settings.register_profile("thorough", deadline=None, max_examples=2000)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "heli"))
 
-# pytest-xdist (`make test` runs up to four workers on the machine's cores): every test that
-# starts processes on the host's loopback (plant, autopilot, ground tools, MAVProxy, MAVSDK, a
-# Dask scheduler) runs on one worker, one after another, so that real-time flights never
-# share the machine with each other and no two of them race for a free port. A test whose
-# processes all live in a private network namespace it makes (@pytest.mark.netns: CAN over
-# udp_multicast, ArduPilot's SITL) has no port of the host's to race for: those run on a
-# second worker, one after another (each is a lockstep flight, heavy on the CPU), beside the
-# first. The in-process tests fill the others. A module here is all process tests; elsewhere
-# a test says so with @pytest.mark.processes.
+# pytest-xdist (`make test`: one worker per core, at most four) hands out the tests file by
+# file (`--dist loadfile`), so that a module's fixtures (a running vehicle, a flown mission,
+# a MAVSDK session, the margins of a gain set) are built once, not once on each worker that
+# gets one of its tests. (An earlier set-up meant to run every process test on one worker
+# through `xdist_group` markers; the markers were added after xdist had read them, so the
+# process tests have always run side by side: each binds free loopback ports, or lives in
+# a private network namespace it makes.) The markers remain labels: `processes` (starts
+# processes on the host's loopback) and `netns` (all its processes in a namespace of its
+# own); `-m "not processes and not netns"` is the in-process suite.
 PROCESS_MODULES = frozenset({
     "test_cli_and_records", "test_gcs_requests", "test_ground_client",
     "test_interop_mavproxy", "test_interop_mavsdk", "test_mavlogdump", "test_process_faults",
@@ -52,10 +52,8 @@ PROCESS_MODULES = frozenset({
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     for item in items:
         module = item.module.__name__.rsplit(".", 1)[-1] if isinstance(item, pytest.Function) else ""
-        if item.get_closest_marker("netns") is not None:
-            item.add_marker(pytest.mark.xdist_group("netns"))
-        elif module in PROCESS_MODULES or item.get_closest_marker("processes") is not None:
-            item.add_marker(pytest.mark.xdist_group("processes"))
+        if module in PROCESS_MODULES:
+            item.add_marker(pytest.mark.processes)
 
 
 RATE_HZ = 100.0

@@ -135,6 +135,26 @@ def test_landing_ends_disarmed_with_a_message(mgr: FlightManager) -> None:
     assert c.Text(c.Severity.INFO, "Landed: disarmed") in mgr.take_events()
 
 
+def test_a_landing_disarms_on_the_ground_even_if_the_estimated_velocity_runs_away(mgr: FlightManager) -> None:
+    """Without a GPS the estimate's velocity can run away at touchdown: half a second with
+    the estimated height on the ground ends the landing all the same (a vehicle waiting for
+    the velocity to settle flew after its estimate: it took off again and flew 9 m)."""
+    x = hovering(0.5)
+    mgr.execute(c.Arm(), 0.0, x)
+    assert mgr.execute(c.Land(), 0.0, x).accepted
+    assert mgr.flight.trajectory is not None
+    end = mgr.flight.trajectory.duration_s
+    drifting = ON_GROUND.copy()
+    drifting[3] = 1.5  # 1.5 m/s forward, dead-reckoned, on the ground
+    t0 = end + 0.01
+    for k in range(50):  # 0.49 s on the ground: still armed
+        mgr.post_tick(t0 + 0.01 * k, drifting)
+    assert mgr.armed
+    mgr.post_tick(t0 + 0.51, drifting)
+    assert not mgr.armed
+    assert c.Text(c.Severity.INFO, "Landed: disarmed") in mgr.take_events()
+
+
 def test_unknown_command_type_is_unsupported(mgr: FlightManager) -> None:
     assert mgr.execute(object(), 0.0, ON_GROUND).result is c.Result.UNSUPPORTED  # type: ignore[arg-type]
 

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from autopilot.flight import commands as c
-from autopilot.flight.modes import Flight, Mode, landed
+from autopilot.flight.modes import LANDED_ALT_M, Flight, Mode, landed
 from autopilot.reference import N_REF, REF_POS
 from autopilot.trajectory.base import Trajectory
 from autopilot.trajectory.waypoints import FlightLimits, WaypointTrajectory
@@ -29,11 +29,12 @@ from heli_common import frames
 from heli_common.geo import GeoPoint
 from heli_common.mavlink import mission_items as ms
 from heli_common.mavlink.mission_items import MissionItem
-from heli_common.state import FloatArray
+from heli_common.state import Z_U, FloatArray
 
 DEFAULT_TAKEOFF_ALT_M = 2.5
 TAKEOFF_ALT_RANGE_M = (0.5, 500.0)
 EVENT_QUEUE = 256
+TOUCHDOWN_S = 0.5  # landing: this long with the estimate on the ground, then disarm
 
 
 class MissionState(enum.Enum):
@@ -87,6 +88,7 @@ class FlightManager:
         self.gps_lost_since: float | None = None  # flight time the GPS was declared lost
         self.nav_diverged = False  # the navigation filter said it diverged (latched: it lands)
         self._nav_seen = (0, 0)  # rejected fixes and estimator resets already reported
+        self._low_since: float | None = None  # landing: since when the estimate is on the ground
 
     def set_mission_source(self, mission: Callable[[], tuple[MissionItem, ...]]) -> None:
         """Where the stored mission lives (the link that runs the mission protocol)."""
@@ -377,8 +379,16 @@ class FlightManager:
         f = self.flight
         if f.armed and f.mode is Mode.LAND and f.trajectory is not None:
             tau = t_s - f.t0_s
-            if tau > f.trajectory.duration_s and landed(x):
-                f.disarm(x)
+            low = bool(x[Z_U] < LANDED_ALT_M)
+            self._low_since = (self._low_since if self._low_since is not None else t_s) if low else None
+            on_ground_s = 0.0 if self._low_since is None else t_s - self._low_since
+            # landed: at rest on the ground; or, the descent over, on the ground for a while
+            # whatever the horizontal velocity: without a GPS the estimate's velocity can run
+            # away at touchdown (seen: 5 m/s^2 of dead reckoning), and a vehicle that waits for
+            # it to settle flies after it (it took off again and flew 9 m)
+            if tau > f.trajectory.duration_s and (landed(x) or on_ground_s >= TOUCHDOWN_S):
+                f.disarm(x, force=True)  # (its own check is landed(x), which is what failed)
+                self._low_since = None
                 self._say(c.Severity.INFO, "Landed: disarmed")
 
     def _mission_progress(self, t_s: float) -> None:
