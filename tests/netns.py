@@ -23,3 +23,19 @@ def unshare_reason() -> str | None:
     if probe.returncode != 0:
         return f"cannot make a network namespace (unshare --net: {probe.stderr.decode().strip()})"
     return None
+
+
+def skip_without_firmware_netns() -> None:
+    """Skip the calling test, saying why, where ArduPilot's SITL binary is missing or no
+    private network namespace can be made (its TCP 5760-5763 and UDP 9002 stay in one)."""
+    import pytest
+
+    from heli_sitl.ardupilot import FirmwareNotFoundError, find_firmware
+
+    try:
+        find_firmware(None)
+    except FirmwareNotFoundError as exc:
+        pytest.skip(f"ArduPilot's SITL binary is not here: {exc}")
+    why = unshare_reason()
+    if why is not None and "msgpack" not in why:  # (msgpack is python-can's, not needed here)
+        pytest.skip(why)

@@ -12,9 +12,8 @@ import sys
 from pathlib import Path
 
 import pytest
-from netns import unshare_reason
+from netns import skip_without_firmware_netns
 
-from heli_sitl.ardupilot import FirmwareNotFoundError, find_firmware
 from heli_sitl.comparison import FIRMWARE_NOTE
 
 pytestmark = [pytest.mark.slow, pytest.mark.netns]
@@ -47,13 +46,7 @@ def test_compare_flies_ardupilot_beside_the_tlc(tmp_path: Path) -> None:
     EKF's height sits ~0.1 m off the truth, on the band's edge: not asserted); nothing lost.
     (The TLC, from the scenario's initial state off the path: transient 0.23 m, overshoot
     0.45 m, steady 0.022 m.)"""
-    try:
-        find_firmware(None)
-    except FirmwareNotFoundError as exc:
-        pytest.skip(f"ArduPilot's SITL binary is not here: {exc}")
-    why = unshare_reason()
-    if why is not None and "msgpack" not in why:  # (msgpack is python-can's, not needed here)
-        pytest.skip(why)
+    skip_without_firmware_netns()
     spec = tmp_path / "ap.toml"
     spec.write_text(COMPARE)
     out, work = tmp_path / "report", tmp_path / "work"

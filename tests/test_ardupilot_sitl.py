@@ -14,12 +14,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from netns import unshare_reason
+from netns import skip_without_firmware_netns
 
 from autopilot.scenario import Scenario
 from ground.guided import truth_tracking
 from ground.plots import read_csv_columns
-from heli_sitl.ardupilot import FirmwareNotFoundError, find_firmware
 from heli_sitl.guided_record import guided_record
 from heli_sitl.scorecard import score
 
@@ -54,13 +53,7 @@ def test_ardupilot_flies_the_paper_plant_and_the_rotor_plant(tmp_path: Path) -> 
     is the machine's load: a setpoint is up to 0.25 s stale, the pacer's horizon); through
     the comparison's scorecard its steady RMS ([10, 120]) is 0.15-0.18 m; it lands and
     disarms."""
-    try:
-        find_firmware(None)
-    except FirmwareNotFoundError as exc:
-        pytest.skip(f"ArduPilot's SITL binary is not here: {exc}")
-    why = unshare_reason()
-    if why is not None and "msgpack" not in why:  # (msgpack is python-can's, not needed here)
-        pytest.skip(why)
+    skip_without_firmware_netns()
     flights = {plant: _start(tmp_path, plant) for plant in ("paper", "gavrilets")}
     for proc in flights.values():
         assert proc.wait(timeout=300) == 0
