@@ -26,8 +26,8 @@ lint: $(STAMP)
 
 test: lint
 	$(BIN)/python -m heli_sitl.warmup
-	# two or more workers; the process tests share one of them (tests/conftest.py); the ten
-	# slowest tests printed at the end
+	# a worker per core (at most four), handed the tests file by file so that a module's
+	# fixtures are built once (tests/conftest.py); the ten slowest tests printed at the end
 	$(BIN)/pytest -q -n auto --maxprocesses 4 --dist loadfile --durations 10
 
 # prints the table and writes it into README.md's performance section (nothing copied by hand)
