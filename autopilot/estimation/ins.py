@@ -37,6 +37,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from autopilot.estimation.config import EstimatorConfig
+from autopilot.estimation.gating import M_ACCEPTED, M_NONE, M_PENDING, M_RESET, gate_outcome
 from autopilot.estimation.log import (
     L_ACCEL_BIAS,
     L_ATT_ERR,
@@ -405,8 +406,6 @@ R_N_UPD = RECORD.offset("n_upd")
 R_UPD = RECORD.offset("upd")
 N_REC = RECORD.size
 
-# measurement flags in a record
-M_NONE, M_PENDING, M_ACCEPTED, M_RESET = 0.0, 1.0, 2.0, 3.0
 # which measurement of a record
 _GPS, _BARO, _MAG = 0, 1, 2
 
@@ -1106,19 +1105,11 @@ def _gate_gps(params: FloatArray, st: FloatArray, t_fix: float, m: int, nis: flo
         st[E_S_VEL + i] = st[E_S_DIAG + 3 + i] if use_vel else math.nan
     st[E_T_FIX_SEEN] = max(st[E_T_FIX_SEEN], t_fix)
     gate = params[K_GATE_6] if use_vel else params[K_GATE_3]
-    if nis <= gate:
-        flag = M_ACCEPTED
-        st[E_N_FIX] += 1.0
-        st[E_N_CONSEC] = 0.0
-        st[E_T_FIX_GATED] = max(st[E_T_FIX_GATED], t_fix)
-    elif st[E_N_CONSEC] >= params[K_MAX_REJECTS]:
-        flag = M_RESET
-        st[E_N_RESET] += 1.0
-        st[E_N_CONSEC] = 0.0
-    else:
-        st[E_N_REJECT] += 1.0
-        st[E_N_CONSEC] += 1.0
+    flag = gate_outcome(st, nis, gate, params[K_MAX_REJECTS], E_N_FIX, E_N_CONSEC, E_N_RESET, E_N_REJECT)
+    if flag == M_NONE:
         return M_NONE
+    if flag == M_ACCEPTED:
+        st[E_T_FIX_GATED] = max(st[E_T_FIX_GATED], t_fix)
     st[E_T_FIX] = max(st[E_T_FIX], t_fix)
     return flag
 
@@ -1241,21 +1232,15 @@ def _apply_mag(params: FloatArray, st: FloatArray, flag: float, t_meas: float, f
         st[E_MAG_S] = st[E_S_DIAG] + st[E_S_DIAG + 1] + st[E_S_DIAG + 2]
         st[E_MAG_INNOV] = math.sqrt(y0 * y0 + y1 * y1 + y2 * y2)
         st[E_T_MAG_SEEN] = max(st[E_T_MAG_SEEN], t_meas)
-        if nis <= params[K_GATE_3]:
-            flag = M_ACCEPTED
-            st[E_N_MAG] += 1.0
-            st[E_N_MAG_CONSEC] = 0.0
-            st[E_T_MAG_OK] = max(st[E_T_MAG_OK], t_meas)
-        elif st[E_N_MAG_CONSEC] >= params[K_MAX_REJECTS] * 10.0:
-            # a field persistently away from the prediction (an attitude that drifted while
-            # the compass was off, a touchdown, a bad start) is believed: realigned
-            flag = M_RESET
-            st[E_N_MAG_RESET] += 1.0
-            st[E_N_MAG_CONSEC] = 0.0
-        else:
-            st[E_N_MAG_REJECT] += 1.0
-            st[E_N_MAG_CONSEC] += 1.0
+        # a field persistently away from the prediction (an attitude that drifted while the
+        # compass was off, a touchdown, a bad start) is believed after ten times the GPS's
+        # run of rejections: realigned
+        flag = gate_outcome(st, nis, params[K_GATE_3], params[K_MAX_REJECTS] * 10.0, E_N_MAG, E_N_MAG_CONSEC,
+                            E_N_MAG_RESET, E_N_MAG_REJECT)  # fmt: skip
+        if flag == M_NONE:
             return M_NONE
+        if flag == M_ACCEPTED:
+            st[E_T_MAG_OK] = max(st[E_T_MAG_OK], t_meas)
     if flag == M_RESET:
         m = np.empty(3)
         for i in range(3):

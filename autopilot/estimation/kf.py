@@ -35,6 +35,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from autopilot.estimation.config import EstimatorConfig
+from autopilot.estimation.gating import M_ACCEPTED, M_NONE, M_PENDING, M_RESET, gate_outcome
 from autopilot.estimation.log import (
     L_BIAS,
     L_DIVERGED,
@@ -236,8 +237,6 @@ R_BARO_TAU = RECORD.offset("baro_tau")
 R_BARO_Z = RECORD.offset("baro_z")
 N_REC = RECORD.size
 
-# measurement flags in a record
-M_NONE, M_PENDING, M_ACCEPTED, M_RESET = 0.0, 1.0, 2.0, 3.0
 
 # status of est_gps / est_baro
 ACCEPTED, REJECTED, RESET, TOO_OLD, BAD_INPUT, NOT_STARTED = 0, 1, 2, 3, 4, 5
@@ -474,17 +473,8 @@ def _apply_gps(
         st[E_NIS] = nis
         st[E_T_INNOV] = t_fix
         gate = params[K_GATE_POS_VEL] if use_vel else params[K_GATE_POS]
-        if nis <= gate:
-            flag = M_ACCEPTED
-            st[E_N_FIX] += 1.0
-            st[E_N_CONSEC] = 0.0
-        elif st[E_N_CONSEC] >= params[K_MAX_REJECTS]:
-            flag = M_RESET
-            st[E_N_RESET] += 1.0
-            st[E_N_CONSEC] = 0.0
-        else:
-            st[E_N_REJECT] += 1.0
-            st[E_N_CONSEC] += 1.0
+        flag = gate_outcome(st, nis, gate, params[K_MAX_REJECTS], E_N_FIX, E_N_CONSEC, E_N_RESET, E_N_REJECT)
+        if flag == M_NONE:
             return M_NONE
         st[E_T_FIX] = max(st[E_T_FIX], t_fix)
     for ax in range(N_AXES):
