@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import functools
 import json
 import math
 from dataclasses import dataclass, field
@@ -73,8 +74,9 @@ class FlightRecord:
             wall_s=wall_s, extra=extra, traj_t_s=traj_t_s, landing=landing,
         )  # fmt: skip
 
-    @property
+    @functools.cached_property
     def pos_err_m(self) -> FloatArray:
+        """3-D position error per tick [m]; computed once (every window and metric reads it)."""
         return np.asarray(np.linalg.norm(self.ref[:, 0:3] - self.x[:, POS], axis=1))
 
     @property

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import functools
 import math
 import tomllib
 import types
@@ -133,11 +134,17 @@ def _convert(tp: Any, value: Any, where: str, meta: Mapping[str, Any]) -> Any:
     raise TypeError(f"unsupported config type {tp!r} at {where}")
 
 
+@functools.cache
+def _hints_and_fields(cls: type) -> tuple[dict[str, Any], dict[str, dataclasses.Field[Any]]]:
+    """A config class's resolved field types and init fields: resolving the annotations
+    (``get_type_hints``) is most of a build's cost, and a campaign builds thousands."""
+    return typing.get_type_hints(cls), {f.name: f for f in dataclasses.fields(cls) if f.init}
+
+
 def _build(cls: type[T], table: Mapping[str, Any], where: str, top: bool = False) -> T:
     """``where`` is "file" for a whole file (``top``) or "file: table" for a table in it."""
     assert dataclasses.is_dataclass(cls)
-    hints = typing.get_type_hints(cls)
-    fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
+    hints, fields = _hints_and_fields(cls)
     for key in table:
         if key not in fields:
             close = difflib.get_close_matches(key, list(fields), n=1)

@@ -58,6 +58,35 @@ def euler_rates(phi: float, theta: float, p: float, q: float, r: float) -> Float
 
 
 @njit
+def mat_vec(m: FloatArray, v: FloatArray) -> FloatArray:
+    """``m @ v`` for a 3x3 ``m``: written out, because numba's ``@`` calls BLAS (dgemv and an
+    output allocation behind a library call), about 60 ns more a product at this size."""
+    out = np.empty(3)
+    for i in range(3):
+        out[i] = m[i, 0] * v[0] + m[i, 1] * v[1] + m[i, 2] * v[2]
+    return out
+
+
+@njit
+def mat_t_vec(m: FloatArray, v: FloatArray) -> FloatArray:
+    """``m.T @ v`` for a 3x3 ``m`` (earth -> body with ``m`` body -> earth), written out."""
+    out = np.empty(3)
+    for i in range(3):
+        out[i] = m[0, i] * v[0] + m[1, i] * v[1] + m[2, i] * v[2]
+    return out
+
+
+@njit
+def mat_mat(a: FloatArray, b: FloatArray) -> FloatArray:
+    """``a @ b`` for 3x3 matrices, written out (see :func:`mat_vec`)."""
+    out = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = a[i, 0] * b[0, j] + a[i, 1] * b[1, j] + a[i, 2] * b[2, j]
+    return out
+
+
+@njit
 def cross(a: FloatArray, b: FloatArray) -> FloatArray:
     out = np.empty(3)
     out[0] = a[1] * b[2] - a[2] * b[1]

@@ -16,7 +16,6 @@ import numpy as np
 from heli_common import rotor
 from heli_common.airframe import PlantConstants
 from heli_common.jit import njit
-from heli_common.kinematics import euler_rates, rot_body_to_earth
 from heli_common.state import (
     EPS,
     ETA,
@@ -94,16 +93,24 @@ def rigid_body(x: FloatArray, f: FloatArray, q: FloatArray, c: PlantConstants) -
     """Newton-Euler: dP = Rt V, m dV = -w x mV + F, dgamma = E^-1 w, J dw = -w x Jw + Q."""
     u, v, w = x[U_F], x[V_L], x[W_U]
     p, qr, r = x[P_X], x[Q_Y], x[R_Z]
-    rt = rot_body_to_earth(x[PHI], x[THETA], x[PSI])
+    # Rt and E^-1 written out with their sines and cosines taken once: the same expressions
+    # as rot_body_to_earth and euler_rates (so the same bits), without their two arrays and
+    # repeated trig; a derivative is evaluated four times a step.
+    cph, sph = math.cos(x[PHI]), math.sin(x[PHI])
+    cth, sth = math.cos(x[THETA]), math.sin(x[THETA])
+    cps, sps = math.cos(x[PSI]), math.sin(x[PSI])
     dx = np.empty(N_STATE)
-    for i in range(3):
-        dx[X_N + i] = rt[i, 0] * u + rt[i, 1] * v + rt[i, 2] * w
+    dx[X_N] = (cth * cps) * u + (sph * sth * cps - cph * sps) * v + (cph * sth * cps + sph * sps) * w
+    dx[X_N + 1] = (cth * sps) * u + (sph * sth * sps + cph * cps) * v + (cph * sth * sps - sph * cps) * w
+    dx[X_N + 2] = (-sth) * u + (sph * cth) * v + (cph * cth) * w
     inv_m = 1.0 / c.mass_kg
     dx[U_F] = -(qr * w - r * v) + f[0] * inv_m
     dx[V_L] = -(r * u - p * w) + f[1] * inv_m
     dx[W_U] = -(p * v - qr * u) + f[2] * inv_m
-    dg = euler_rates(x[PHI], x[THETA], p, qr, r)
-    dx[PHI], dx[THETA], dx[PSI] = dg[0], dg[1], dg[2]
+    qs_rc = qr * sph + r * cph
+    dx[PHI] = p + qs_rc * math.tan(x[THETA])
+    dx[THETA] = qr * cph - r * sph
+    dx[PSI] = qs_rc / cth
     # J w with J = [[Ixx,0,-Ixz],[0,Iyy,0],[-Ixz,0,Izz]]
     hx = c.ixx * p - c.ixz * r
     hy = c.iyy * qr

@@ -1041,8 +1041,10 @@ def _cholesky_nis(st: FloatArray, m: int) -> float:
         st[z + k] = zk
         for i in range(k + 1, m):
             st[z + i] -= st[col + i] * zk
-    zz = st[z : z + m]
-    return float(zz @ zz)
+    total = 0.0  # a loop, not ``zz @ zz``: numba's 1-D @ is a BLAS call for a handful of terms
+    for i in range(m):
+        total += st[z + i] * st[z + i]
+    return total
 
 
 @njit

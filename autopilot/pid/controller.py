@@ -33,7 +33,7 @@ from autopilot.tlc.allocation import allocate
 from autopilot.tlc.inversion import force_to_thrust_attitude, limit_tilt, yaw_rate_command
 from heli_common.airframe import Airframe, PlantConstants
 from heli_common.jit import njit
-from heli_common.kinematics import cross, euler_rate_matrix, rot_body_to_earth, wrap_pi
+from heli_common.kinematics import cross, euler_rate_matrix, mat_t_vec, mat_vec, rot_body_to_earth, wrap_pi
 from heli_common.layout import Layout
 from heli_common.state import EULER, N_PITCH, OMEGA, POS, VEL, FloatArray
 
@@ -157,10 +157,10 @@ def pid_kernel(
     vsp = vr + fb
     # --- velocity PI (earth) -> acceleration set point (trajectory acceleration as feed-forward)
     rt = rot_body_to_earth(gam[0], gam[1], gam[2])
-    ve = vsp - rt @ vel
+    ve = vsp - mat_vec(rt, vel)
     asp = ar + k.kp_vel * ve + k.ki_vel * s[P_I_VEL : P_I_VEL + 3]
     # --- thrust vector with a tilt limit -> thrust and roll/pitch set point (the TLC's inversion)
-    fc = c.mass_kg * (rt.T @ asp)
+    fc = c.mass_kg * mat_t_vec(rt, asp)
     tilt_limited = limit_tilt(fc, mg, k.tilt_max_rad)
     tm, phi_c, theta_c = force_to_thrust_attitude(fc, mg)
     # --- yaw set point: nose along the path, as the TLC
@@ -170,12 +170,12 @@ def pid_kernel(
     ge[0], ge[1], ge[2] = phi_c - gam[0], theta_c - gam[1], wrap_pi(s[P_PSI_C] - gam[2])
     de = k.kp_att * ge
     de[2] += dpsi_c
-    wc = euler_rate_matrix(gam[0], gam[1]) @ de
+    wc = mat_vec(euler_rate_matrix(gam[0], gam[1]), de)
     for i in range(3):
         wc[i] = min(max(wc[i], -k.max_rate[i]), k.max_rate[i])
     # --- body-rate PID -> torque (rigid-body feed-forward omega x J omega)
     alpha = rate_loop(k, s, om, wc, first)
-    qc = k.j @ alpha + cross(om, k.j @ om)
+    qc = mat_vec(k.j, alpha) + cross(om, mat_vec(k.j, om))
 
     # --- allocation with saturation (the TLC's)
     u, tm, sat_mask = allocate(qc, tm, c, k.limits)

@@ -49,7 +49,7 @@ from autopilot.tlc.rotor_aware import (
 )
 from heli_common.airframe import Airframe, PlantConstants
 from heli_common.jit import njit
-from heli_common.kinematics import cross, euler_rate_matrix, rot_body_to_earth, wrap_pi
+from heli_common.kinematics import cross, euler_rate_matrix, mat_t_vec, mat_vec, rot_body_to_earth, wrap_pi
 from heli_common.layout import Layout
 from heli_common.state import EULER, N_PITCH, OMEGA, POS, VEL, FloatArray
 
@@ -206,7 +206,7 @@ def tlc_kernel(
     else:
         a = dpc + k.w2[0] * s[S_I1 : S_I1 + 3] + k.zw2[0] * pe
     rt = rot_body_to_earth(gam[0], gam[1], gam[2])
-    vc = rt.T @ a
+    vc = mat_t_vec(rt, a)
 
     # --- loop 2: position dynamics (dVc/dt differentiated in the earth frame)
     ve = vc - vel
@@ -215,7 +215,7 @@ def tlc_kernel(
     da = np.empty(3)
     unused = np.empty(3)
     diff_step(s, S_D_A, a, k.diff, da, unused)
-    fc = c.mass_kg * (rt.T @ da) + c.mass_kg * (
+    fc = c.mass_kg * mat_t_vec(rt, da) + c.mass_kg * (
         k.w2[1] * s[S_I2 : S_I2 + 3] + k.zw2[1] * ve - cross(om, ve)
     )
     tilt_limited = limit_tilt(fc, mg, k.tilt_max_rad)
@@ -235,7 +235,7 @@ def tlc_kernel(
     diff_step(s, S_D_GAMMA, gc, k.diff, dgc, unused)
     ec = euler_rate_matrix(gc[0], gc[1])
     a3 = a3_matrix(gc[0], gc[1], om[0], om[1], om[2])
-    wc = ec @ (dgc + k.w2[2] * s[S_I3 : S_I3 + 3] + k.zw2[2] * ge + a3 @ ge)
+    wc = mat_vec(ec, dgc + k.w2[2] * s[S_I3 : S_I3 + 3] + k.zw2[2] * ge + mat_vec(a3, ge))
 
     # --- loop 4: attitude dynamics -> torque command
     we = wc - om
@@ -244,8 +244,8 @@ def tlc_kernel(
     dwc = np.empty(3)
     diff_step(s, S_D_OMEGA, wc, k.diff, dwc, unused)
     a4 = a4_matrix(wc, k.j, k.j_inv)
-    qc = k.j @ dwc + cross(wc, k.j @ wc) + k.j @ (
-        k.w2[3] * s[S_I4 : S_I4 + 3] + k.zw2[3] * we + a4 @ we
+    qc = mat_vec(k.j, dwc) + cross(wc, mat_vec(k.j, wc)) + mat_vec(
+        k.j, k.w2[3] * s[S_I4 : S_I4 + 3] + k.zw2[3] * we + mat_vec(a4, we)
     )
 
     # --- allocation with saturation (the rotor-aware TLC: to the disc's tilt, then loop 5)

@@ -11,6 +11,7 @@ import math
 import numpy as np
 
 from heli_common.jit import njit
+from heli_common.kinematics import mat_mat, mat_vec
 from heli_common.state import FloatArray
 
 
@@ -42,5 +43,5 @@ def skew(v: FloatArray) -> FloatArray:
 @njit
 def a4_matrix(omega: FloatArray, j: FloatArray, j_inv: FloatArray) -> FloatArray:
     """A4 = d(-J^-1 (w x J w))/dw = -J^-1 ([w]x J - [J w]x) at ``omega``."""
-    jw = j @ omega
-    return -(j_inv @ (skew(omega) @ j - skew(jw)))
+    jw = mat_vec(j, omega)
+    return -mat_mat(j_inv, mat_mat(skew(omega), j) - skew(jw))

@@ -129,7 +129,7 @@ def _solve_inflow(
     dx_old = hi - lo
     for _ in range(_MAX_ITER):
         d = lam + mz
-        qq = math.hypot(mu, d)
+        qq = math.sqrt(mu * mu + d * d)  # not hypot (a library call): both are clipped to 1e6
         g = two_eta * lam * qq + quarter * lam - kk  # momentum minus blade-element thrust
         if g > 0.0:
             hi = lam
