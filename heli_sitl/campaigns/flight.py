@@ -45,6 +45,18 @@ def metrics(rec: FlightRecord, spec: CampaignSpec) -> dict[str, Any]:
     return {k: row[k] for k in spec.metrics}
 
 
+def options(f: Flight, duration_s: float | None) -> SimOptions:
+    """The in-process flight of ``f`` (for ``duration_s``, None: the scenario's)."""
+    return SimOptions(world=f.world, estimator=f.estimator, duration_s=duration_s,
+                      controller=f.controller, pid_gains=f.pid_gains, plant=f.plant)  # fmt: skip
+
+
+def warm(base: Flight) -> None:
+    """Load the compiled code a campaign's flights run (numba's cache, ~1 s per process) with
+    a flight of a few ticks, so that a worker's first batch is flown at its full pace."""
+    simulate(base.scenario, options(base, 0.05))
+
+
 def fly(
     spec: CampaignSpec, base: Flight, sample_id: int, keys: tuple[str, ...], values: list[float]
 ) -> dict[str, Any]:
@@ -57,9 +69,7 @@ def fly(
             settings["world.seed"] = float(flight_seed(spec, sample_id))
         f = apply(base, settings)
         row["seed"] = f.world.seed
-        opts = SimOptions(world=f.world, estimator=f.estimator, duration_s=spec.duration_s,
-                          controller=f.controller, pid_gains=f.pid_gains, plant=f.plant)  # fmt: skip
-        rec = simulate(f.scenario, opts)
+        rec = simulate(f.scenario, options(f, spec.duration_s))
         row["wall_s"] = rec.wall_s
         row.update(metrics(rec, spec))
         row["failed"] = False
