@@ -13,9 +13,13 @@ from heli_common.state import FloatArray
 @njit
 def rot_body_to_earth(phi: float, theta: float, psi: float) -> FloatArray:
     """Rt(gamma) = Rz(psi) Ry(theta) Rx(phi): maps FLU body vectors to NWU earth vectors."""
-    cph, sph = math.cos(phi), math.sin(phi)
-    cth, sth = math.cos(theta), math.sin(theta)
-    cps, sps = math.cos(psi), math.sin(psi)
+    cph, sph, cth, sth = math.cos(phi), math.sin(phi), math.cos(theta), math.sin(theta)
+    return rot_at(cph, sph, cth, sth, math.cos(psi), math.sin(psi))
+
+
+@njit
+def rot_at(cph: float, sph: float, cth: float, sth: float, cps: float, sps: float) -> FloatArray:
+    """:func:`rot_body_to_earth` from the Euler angles' cosines and sines."""
     r = np.empty((3, 3))
     r[0, 0] = cth * cps
     r[0, 1] = sph * sth * cps - cph * sps

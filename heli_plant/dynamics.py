@@ -58,8 +58,11 @@ def forces_torques(x: FloatArray, u: FloatArray, c: PlantConstants) -> tuple[Flo
 @njit
 def gravity_flu(x: FloatArray, c: PlantConstants) -> FloatArray:
     """Weight in body FLU [N]: ``m R^T (0, 0, -g)``."""
-    sph, cph = math.sin(x[PHI]), math.cos(x[PHI])
-    sth, cth = math.sin(x[THETA]), math.cos(x[THETA])
+    return gravity_at(c, math.cos(x[PHI]), math.sin(x[PHI]), math.cos(x[THETA]), math.sin(x[THETA]))
+
+
+@njit
+def gravity_at(c: PlantConstants, cph: float, sph: float, cth: float, sth: float) -> FloatArray:
     mg = c.mass_kg * c.gravity_m_s2
     f = np.empty(3)
     f[0] = mg * sth
@@ -74,10 +77,18 @@ def forces_from_loads(
 ) -> tuple[FloatArray, FloatArray]:
     """Eqs 12-13 for given rotor thrusts and torques (the hover maps', or the inflow
     model's in a relative wind): body force with gravity, and torque."""
+    return forces_from_loads_at(u, c, tm, qm, tt, qt, gravity_flu(x, c))
+
+
+@njit
+def forces_from_loads_at(
+    u: FloatArray, c: PlantConstants, tm: float, qm: float, tt: float, qt: float, f: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """:func:`forces_from_loads` with the weight ``f`` [N, FLU] given (and added to in place):
+    a caller that has the attitude's sines and cosines already passes :func:`gravity_at`."""
     eps, eta = u[EPS], u[ETA]
     seps, ceps, seta, ceta = math.sin(eps), math.cos(eps), math.sin(eta), math.cos(eta)
     d = math.sqrt(1.0 - seps * seps * seta * seta)
-    f = gravity_flu(x, c)
     f[0] = f[0] + tm * seps * ceta / d
     f[1] = f[1] - tm * ceps * seta / d - tt
     f[2] = f[2] + tm * ceps * ceta / d
@@ -91,14 +102,23 @@ def forces_from_loads(
 @njit
 def rigid_body(x: FloatArray, f: FloatArray, q: FloatArray, c: PlantConstants) -> FloatArray:
     """Newton-Euler: dP = Rt V, m dV = -w x mV + F, dgamma = E^-1 w, J dw = -w x Jw + Q."""
-    u, v, w = x[U_F], x[V_L], x[W_U]
-    p, qr, r = x[P_X], x[Q_Y], x[R_Z]
-    # Rt and E^-1 written out with their sines and cosines taken once: the same expressions
-    # as rot_body_to_earth and euler_rates (so the same bits), without their two arrays and
-    # repeated trig; a derivative is evaluated four times a step.
     cph, sph = math.cos(x[PHI]), math.sin(x[PHI])
     cth, sth = math.cos(x[THETA]), math.sin(x[THETA])
     cps, sps = math.cos(x[PSI]), math.sin(x[PSI])
+    return rigid_body_at(x, f, q, c, cph, sph, cth, sth, cps, sps)
+
+
+@njit
+def rigid_body_at(
+    x: FloatArray, f: FloatArray, q: FloatArray, c: PlantConstants, cph: float, sph: float,
+    cth: float, sth: float, cps: float, sps: float,
+) -> FloatArray:  # fmt: skip
+    """:func:`rigid_body` with the attitude's cosines and sines given (a derivative needs
+    them for the weight and the air too: taken once, the same bits)."""
+    u, v, w = x[U_F], x[V_L], x[W_U]
+    p, qr, r = x[P_X], x[Q_Y], x[R_Z]
+    # Rt and E^-1 written out: the same expressions as rot_body_to_earth and euler_rates (so
+    # the same bits), without their two arrays; a derivative is evaluated four times a step.
     dx = np.empty(N_STATE)
     dx[X_N] = (cth * cps) * u + (sph * sth * cps - cph * sps) * v + (cph * sth * cps + sph * sps) * w
     dx[X_N + 1] = (cth * sps) * u + (sph * sth * sps + cph * cps) * v + (cph * sth * sps - sph * cps) * w

@@ -29,7 +29,7 @@ from autopilot.tlc.controller import (
 from autopilot.tlc.differentiator import diff_reset, diff_step, discretize
 from autopilot.tlc.gains import Gains
 from autopilot.tlc.inversion import force_to_thrust_attitude, limit_tilt, yaw_rate_command
-from autopilot.tlc.loops import a3_matrix, a4_matrix
+from autopilot.tlc.loops import a3_matrix, a4_matrix, a4_times
 from heli_common.airframe import Airframe, PlantConstants
 from heli_common.kinematics import euler_rates
 from heli_common.rotor import pitch_from_thrust_coeff
@@ -88,6 +88,17 @@ def test_a4_is_jacobian_of_gyroscopic_term(c: PlantConstants, w: tuple[float, fl
 
     om = np.array(w)
     assert_allclose(a4_matrix(om, j, j_inv), central_jacobian(gyro, om), atol=1e-7)
+
+
+@pytest.mark.parametrize("c", [_C, _C_LM], ids=["ixz=0", "ixz=0.04"])
+@given(w=st.tuples(rate, rate, rate), v=st.tuples(rate, rate, rate))
+def test_a4_times_is_the_matrix_product(c: PlantConstants, w: tuple[float, float, float],
+                                        v: tuple[float, float, float]) -> None:  # fmt: skip
+    """The kernel's matrix-free A4 v equals A4(omega) @ v (to rounding)."""
+    j = inertia(c)
+    j_inv = np.linalg.inv(j)
+    om, vv = np.array(w), np.array(v)
+    assert_allclose(a4_times(om, j, j_inv, vv), a4_matrix(om, j, j_inv) @ vv, rtol=1e-12, atol=1e-12)
 
 
 def test_a4_nonzero_ixz_couples_roll_and_yaw() -> None:

@@ -38,7 +38,7 @@ from autopilot.tlc.allocation import allocate, collective_tail_tilt
 from autopilot.tlc.differentiator import DiffCoeffs, diff_reset, diff_step, discretize
 from autopilot.tlc.gains import Gains
 from autopilot.tlc.inversion import force_to_thrust_attitude, limit_tilt, yaw_rate_command
-from autopilot.tlc.loops import a3_matrix, a4_matrix
+from autopilot.tlc.loops import a3_matrix, a4_times
 from autopilot.tlc.rotor_aware import (
     SERVO_STATE_SIZE,
     RotorAwareConstants,
@@ -186,9 +186,11 @@ def tlc_kernel(
         else:
             s[S_PSI_C] = gam[2]
 
+    # the differentiators' outputs: rows of one array (one allocation, not six, a tick)
+    rates = np.empty((6, 3))
+    dpc, d2pc, da, unused, dgc, dwc = rates[0], rates[1], rates[2], rates[3], rates[4], rates[5]
+
     # --- loop 1: position kinematics -> earth-frame velocity command a = Rt Vc
-    dpc = np.empty(3)
-    d2pc = np.empty(3)
     diff_step(s, S_D_POS, pc, k.diff, dpc, d2pc)
     if k.exact_ff:
         dpc[:] = ref[REF_VEL : REF_VEL + 3]
@@ -212,8 +214,6 @@ def tlc_kernel(
     ve = vc - vel
     if first:
         diff_reset(s, S_D_A, a)
-    da = np.empty(3)
-    unused = np.empty(3)
     diff_step(s, S_D_A, a, k.diff, da, unused)
     fc = c.mass_kg * mat_t_vec(rt, da) + c.mass_kg * (
         k.w2[1] * s[S_I2 : S_I2 + 3] + k.zw2[1] * ve - cross(om, ve)
@@ -231,7 +231,6 @@ def tlc_kernel(
     ge[2] = wrap_pi(ge[2])
     if first:
         diff_reset(s, S_D_GAMMA, gc)
-    dgc = np.empty(3)
     diff_step(s, S_D_GAMMA, gc, k.diff, dgc, unused)
     ec = euler_rate_matrix(gc[0], gc[1])
     a3 = a3_matrix(gc[0], gc[1], om[0], om[1], om[2])
@@ -241,11 +240,9 @@ def tlc_kernel(
     we = wc - om
     if first:
         diff_reset(s, S_D_OMEGA, wc)
-    dwc = np.empty(3)
     diff_step(s, S_D_OMEGA, wc, k.diff, dwc, unused)
-    a4 = a4_matrix(wc, k.j, k.j_inv)
     qc = mat_vec(k.j, dwc) + cross(wc, mat_vec(k.j, wc)) + mat_vec(
-        k.j, k.w2[3] * s[S_I4 : S_I4 + 3] + k.zw2[3] * we + mat_vec(a4, we)
+        k.j, k.w2[3] * s[S_I4 : S_I4 + 3] + k.zw2[3] * we + a4_times(wc, k.j, k.j_inv, we)
     )
 
     # --- allocation with saturation (the rotor-aware TLC: to the disc's tilt, then loop 5)

@@ -30,14 +30,14 @@ from heli_common import servo_model as servos
 from heli_common.airframe import Airframe, PlantConstants
 from heli_common.gusts import gust_factor, mean_wind_nwu
 from heli_common.jit import njit
-from heli_common.kinematics import rot_body_to_earth
+from heli_common.kinematics import rot_at, rot_body_to_earth
 from heli_common.layout import Layout
 from heli_common.plant_model import RotorPlant
 from heli_common.state import N_PITCH, N_STATE, P_X, PHI, PSI, Q_Y, R_Z, THETA, U_F, V_L, W_U, FloatArray
 from heli_common.world import World
 from heli_plant import rotor
 from heli_plant.contact import apply_ground_contact
-from heli_plant.dynamics import forces_from_loads, rigid_body, rotor_loads
+from heli_plant.dynamics import forces_from_loads_at, gravity_at, rigid_body_at, rotor_loads
 from heli_plant.rotor import N_ROTOR, RotorConstants
 from heli_plant.world import air, wind
 
@@ -191,16 +191,21 @@ def _derivative_from(
     solved): the integrator hands each RK4 stage the previous stage's inflow, so a solve
     starts half a step away instead of a whole one (and no extra solve per step is needed)."""
     dr = np.empty(0)
+    # the attitude's cosines and sines, once for the weight, the air and the rigid body
+    cph, sph = math.cos(x[PHI]), math.sin(x[PHI])
+    cth, sth = math.cos(x[THETA]), math.sin(x[THETA])
+    cps, sps = math.cos(x[PSI]), math.sin(x[PSI])
+    trig = (cph, sph, cth, sth, cps, sps)
     if not (g.on or a.inflow or a.fuselage):
         tm, qm, tt, qt = rotor_loads(u[0], u[1], c)
-        f, q = forces_from_loads(x, u, c, tm, qm, tt, qt)
-        return _with_disturbance(t, x, f, q, c, wp, dr, 0.0), lam_m0, lam_t0
-    rt = rot_body_to_earth(x[PHI], x[THETA], x[PSI])
+        f, q = forces_from_loads_at(u, c, tm, qm, tt, qt, gravity_at(c, cph, sph, cth, sth))
+        return _with_disturbance(t, x, f, q, c, wp, dr, 0.0, trig), lam_m0, lam_t0
+    rt = rot_at(cph, sph, cth, sth, cps, sps)
     u_a, v_a, w_a = air_relative_flu(x, rt, w_nwu)
     if g.on:
         f, q, dr, _, _, _ = rotor.rotor_loads(x, u, c, g, u_a, v_a, w_a, ws[WS_LAM_MAIN], ws[WS_LAM_TAIL],
                                               N_STATE, ws[WS_GOVERNOR_SET])  # fmt: skip
-        return _with_disturbance(t, x, f, q, c, wp, dr, g.rot), lam_m0, lam_t0
+        return _with_disturbance(t, x, f, q, c, wp, dr, g.rot, trig), lam_m0, lam_t0
     lam_m, lam_t = lam_m0, lam_t0
     if a.inflow:
         tm, qm, tt, qt, lam_m, lam_t = air.rotor_loads_in_air(
@@ -211,19 +216,19 @@ def _derivative_from(
     else:
         tm, qm, tt, qt = rotor_loads(u[0], u[1], c)
         v_i = 0.0
-    f, q = forces_from_loads(x, u, c, tm, qm, tt, qt)
+    f, q = forces_from_loads_at(u, c, tm, qm, tt, qt, gravity_at(c, cph, sph, cth, sth))
     if a.fuselage:
         fx, fy, fz = air.fuselage_force_flu(u_a, v_a, w_a, v_i, a.s_x, a.s_y, a.s_z, a.rho)
         f[0] += fx
         f[1] += fy
         f[2] += fz
-    return _with_disturbance(t, x, f, q, c, wp, dr, 0.0), lam_m, lam_t
+    return _with_disturbance(t, x, f, q, c, wp, dr, 0.0, trig), lam_m, lam_t
 
 
 @njit
 def _with_disturbance(
     t: float, x: FloatArray, f: FloatArray, q: FloatArray, c: PlantConstants, wp: FloatArray,
-    dr: FloatArray, rot: float,
+    dr: FloatArray, rot: float, trig: tuple[float, float, float, float, float, float],
 ) -> FloatArray:  # fmt: skip
     """The injected disturbance added to ``f``, ``q``; the rigid body's derivative, then the
     rotor states' ``dr`` (the rotor speed relative to a fuselage yawing at ``r'``: ``- rot r'``)."""
@@ -235,11 +240,11 @@ def _with_disturbance(
                 f[i] += s * df[i]
                 q[i] += s * dq[i]
         else:  # earth -> body: R^T
-            rt = rot_body_to_earth(x[PHI], x[THETA], x[PSI])
+            rt = rot_at(*trig)
             for i in range(3):
                 f[i] += s * (rt[0, i] * df[0] + rt[1, i] * df[1] + rt[2, i] * df[2])
                 q[i] += s * (rt[0, i] * dq[0] + rt[1, i] * dq[1] + rt[2, i] * dq[2])
-    dx = rigid_body(x, f, q, c)
+    dx = rigid_body_at(x, f, q, c, *trig)
     if dr.shape[0] == 0:
         return dx
     out = np.empty(N_STATE + dr.shape[0])
