@@ -321,6 +321,27 @@ def test_accelerometer_reads_plus_g_level_at_rest() -> None:
     assert_allclose(f, G * np.array(up), rtol=1e-14)
 
 
+def test_on_the_ground_with_thrust_short_of_the_weight_the_accelerometer_reads_g() -> None:
+    """The vehicle on the ground surface but not flagged resting (the step that set it down,
+    or a lift-off that thrust cannot hold): the ground's reaction holds it, so the
+    accelerometer reads +g up, not the free fall of the bare derivative; one metre up, the
+    same pitches (no thrust) are a free fall: zero specific force."""
+    from heli_common.airframe import Airframe
+    from heli_common.defaults import HOME
+    from heli_plant.sensors.sensing import Sensing
+
+    af = Airframe.load()
+    c = af.constants()
+    sensing = Sensing.build(Sensors(imu=Imu(on=True, rate_hz=100.0)), 0.01, c.gravity_m_s2, HOME)
+    x = np.zeros(N_STATE)
+    no_thrust = np.zeros(4)
+    sensing.sample(0.0, x, no_thrust, c, False, None)
+    assert_allclose(sensing.meas[OUT_ACCEL : OUT_ACCEL + 3], [0.0, 0.0, c.gravity_m_s2], atol=1e-9)
+    x[Z_U] = 1.0
+    sensing.sample(0.01, x, no_thrust, c, False, None)
+    assert_allclose(sensing.meas[OUT_ACCEL : OUT_ACCEL + 3], [0.0, 0.0, 0.0], atol=1e-9)
+
+
 def test_specific_force_in_a_coordinated_turn() -> None:
     """A level left turn at V = 10 m/s, yaw rate 0.5 rad/s, banked phi = -atan(V w / g) (FLU:
     left wing down): the earth acceleration is V w toward the centre and the accelerometer

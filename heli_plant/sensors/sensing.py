@@ -48,9 +48,10 @@ from heli_common.sensor_wire import (
     to_wire_resolution,
 )
 from heli_common.sensors import Sensors
-from heli_common.state import N_PITCH, FloatArray
+from heli_common.state import N_PITCH, Z_U, FloatArray
 from heli_common.world import World
 from heli_plant import rotor
+from heli_plant.contact import GROUND_Z_M
 from heli_plant.dynamics import derivative
 from heli_plant.rotor import RotorConstants
 from heli_plant.sensors.model import SensorModel, earth_accel_from_derivative, sensor_step
@@ -87,6 +88,11 @@ def sense(
         else:
             xdot = derivative(t_s, x, held, c)
         acc[0], acc[1], acc[2] = earth_accel_from_derivative(x, xdot)
+        if x[Z_U] <= GROUND_Z_M and acc[2] < 0.0:
+            # on the ground with a net force into it (thrust short of the weight, the step
+            # that set the vehicle down): the ground's reaction holds it, as the contact
+            # model will (heli_plant.contact): it measures what a resting vehicle does
+            acc[:] = 0.0
     mask = sensor_step(t_s, x, acc, snp, sns, out)
     to_wire_resolution(out, mask, home)
     return mask
