@@ -1,16 +1,20 @@
 """Campaigns (heli-sitl campaign): files checked before anything flies, samplers that draw
 the declared distributions, the same rows from the same file whatever the cluster, a real
-Dask scheduler and workers on loopback, resuming after a SIGKILL, a worker killed mid-way.
+Dask scheduler and workers on loopback, resuming after a SIGKILL, a worker killed mid-way,
+the figures drawn on the cluster byte for byte as here, a figure that fails costing nothing else.
 """
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pyarrow.parquet as pq
@@ -19,7 +23,7 @@ from scipy import stats
 
 from heli_common.config import ConfigError
 from heli_common.mavlink.udp import free_udp_port
-from heli_sitl.campaigns import engine
+from heli_sitl.campaigns import engine, report
 from heli_sitl.campaigns.run import prepare, run_campaign
 from heli_sitl.campaigns.sampling import flight_count, sample_table
 from heli_sitl.campaigns.spec import parse
@@ -435,6 +439,105 @@ def test_via_processes_flies_the_in_process_rows_again_over_mavlink(tmp_path: Pa
     for r in res:
         assert r["abs_diff_m"]["rms_0_m"] < 1e-3 and r["abs_diff_m"]["rms_10_m"] < 1e-3, r
     assert (tmp_path / "out" / "via_processes.json").is_file()
+
+
+def _figures_from_the_cluster(
+    monkeypatch: pytest.MonkeyPatch, lose: str = ""
+) -> dict[str, bytes | Exception]:
+    """What ``engine.render_figures`` hands back from the cluster's workers, by figure (filled
+    as the campaign runs); ``lose``: that figure's task reported failed, as a lost worker's
+    would be."""
+    got: dict[str, bytes | Exception] = {}
+    real = engine.render_figures
+
+    def spy(*args: Any, **kwargs: Any) -> Iterator[tuple[report.Sheet, bytes | Exception]]:
+        for sheet, png in real(*args, **kwargs):
+            got[sheet.name] = png
+            yield sheet, RuntimeError("worker lost") if sheet.name == lose else png
+
+    monkeypatch.setattr(engine, "render_figures", spy)
+    return got
+
+
+def _count_figures_drawn_here(monkeypatch: pytest.MonkeyPatch) -> list[int]:
+    """One entry per figure drawn in this process (the workers' own module is not patched)."""
+    calls: list[int] = []
+    real = report._png
+
+    def counted(*args: Any, **kwargs: Any) -> bytes:
+        calls.append(1)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(report, "_png", counted)
+    return calls
+
+
+def _few_flights(tmp_path: Path, n: int) -> Path:
+    f = small_file(tmp_path)
+    f.write_text(f.read_text().replace("samples = 12", f"samples = {n}"))
+    return f
+
+
+@pytest.mark.slow
+@pytest.mark.processes
+def test_the_figures_drawn_on_the_cluster_are_the_ones_drawn_here(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Each figure is a task on the campaign's cluster, its PNG bytes sent back and written
+    here: byte for byte the figure drawn here, as a re-run with every flight done draws it
+    (no cluster then); campaign.json lists them in the same order either way."""
+    f = _few_flights(tmp_path, 4)
+    from_cluster = _figures_from_the_cluster(monkeypatch)
+    drawn_here = _count_figures_drawn_here(monkeypatch)
+    out = tmp_path / "out"
+    s = run_campaign(f, out, workers=2, quiet=True)
+    spec, _, _ = prepare(f)
+    plan = report.sheets(spec)
+    names = [sh.name for sh in plan]
+    assert names[0] == "hist.png" and len(names) == 1 + len(spec.keys)
+    assert s["figures"] == names and "figure_errors" not in s
+    assert sorted(from_cluster) == sorted(names) and not drawn_here  # every one by a worker
+    results = pq.read_table(out / engine.RESULTS)
+    drawn = {sh.name: (out / sh.name).read_bytes() for sh in plan}
+    for sheet in plan:
+        here = report.render(spec, results, sheet)
+        assert from_cluster[sheet.name] == drawn[sheet.name] == here, sheet.name
+    # the same command again: nothing to fly, no cluster, the same figures drawn here
+    from_cluster.clear()
+    drawn_here.clear()
+    again = run_campaign(f, out, workers=2, quiet=True)
+    assert again["run"]["flown_now"] == 0 and not from_cluster and len(drawn_here) == len(plan)
+    assert again["figures"] == names
+    assert {sh.name: (out / sh.name).read_bytes() for sh in plan} == drawn
+
+
+@pytest.mark.slow
+@pytest.mark.processes
+def test_a_figure_whose_task_fails_costs_neither_the_results_nor_campaign_json(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A figure that raises on its worker (and here too) is left out and reported in
+    campaign.json; a figure whose task is lost is drawn here instead; the rows and
+    campaign.json are written either way."""
+    real_sheets = report.sheets
+    broken = report.Sheet("vs_nowhere.png", "vs", key="nowhere")  # no such column, anywhere
+    monkeypatch.setattr(report, "sheets", lambda spec: [*real_sheets(spec), broken])
+    from_cluster = _figures_from_the_cluster(monkeypatch, lose="hist.png")
+    f = _few_flights(tmp_path, 2)
+    out = tmp_path / "out"
+    s = run_campaign(f, out, workers=2, quiet=True)
+    assert isinstance(from_cluster["vs_nowhere.png"], KeyError)  # raised on the worker
+    assert [r["sample_id"] for r in rows(out)] == [0, 1]
+    spec, _, _ = prepare(f)
+    names = [sh.name for sh in real_sheets(spec)]
+    saved = json.loads((out / "campaign.json").read_text())
+    assert saved["counts"]["flights"] == 2
+    assert saved["figures"] == s["figures"] == names  # the lost one drawn here, the broken one left out
+    errors = saved["figure_errors"]
+    assert list(errors) == ["vs_nowhere.png"] and "nowhere" in errors["vs_nowhere.png"]
+    assert not (out / "vs_nowhere.png").exists()
+    results = pq.read_table(out / engine.RESULTS)
+    assert (out / "hist.png").read_bytes() == report.render(spec, results, report.Sheet("hist.png", "hist"))
 
 
 def test_campaign_plots_survive_a_metric_with_no_finite_bins(tmp_path: Path) -> None:

@@ -9,7 +9,8 @@ temporary name, then renamed: a part is there whole or not at all). Running the 
 command again reads the parts, skips every sample id already there, and flies the rest:
 no sample is flown into two parts. A worker that dies has its task retried (Dask's
 ``retries``); a flight that raises is a failed row. At the end ``DIR/results.parquet``
-holds every row, sorted by sample id.
+holds every row, sorted by sample id. While the cluster is still up, the campaign draws its
+figures on it (:func:`render_figures`: one task per figure, its PNG bytes sent back).
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from heli_sitl.campaigns import report
 from heli_sitl.campaigns.flight import fly, warm
 from heli_sitl.campaigns.settings import Flight
 from heli_sitl.campaigns.spec import CampaignSpec
@@ -148,7 +150,7 @@ class EngineStats:
     flights: int = 0
     failed: int = 0
     batches: int = 0
-    wall_s: float = 0.0  # cluster start + flights
+    wall_s: float = 0.0  # cluster start + flights (not what runs on the cluster after them)
     cluster_start_s: float = 0.0  # workers up, their compiled code loaded
     flying_s: float = 0.0  # from the workers ready to the last part written
     workers: int = 0
@@ -196,9 +198,12 @@ def run(
     workers: int,
     scheduler: str | None = None,
     progress: Callable[[int, int, int], None] | None = None,
+    on_cluster: Callable[[Any], None] | None = None,
 ) -> EngineStats:
     """Fly every sample of ``table`` not yet in ``out``; ``progress(done, total, failed)``
-    after each batch."""
+    after each batch; ``on_cluster(client)`` once every flight is written, the cluster still
+    up (the campaign draws its figures on it). Where every flight was already written no
+    cluster starts, and ``on_cluster`` is not called."""
     from dask.distributed import as_completed
 
     stats = EngineStats(scheduler=scheduler or "embedded LocalCluster")
@@ -238,5 +243,29 @@ def run(
             if progress is not None:
                 progress(done, total, stats.failed)
         stats.flying_s = time.perf_counter() - t_ready
-    stats.wall_s = time.perf_counter() - t0
+        stats.wall_s = time.perf_counter() - t0
+        if on_cluster is not None:
+            on_cluster(client)
     return stats
+
+
+def render_figures(
+    client: Any, spec: CampaignSpec, table: pa.Table, sheets: list[report.Sheet]
+) -> Iterator[tuple[report.Sheet, bytes | Exception]]:
+    """Each figure of ``sheets`` drawn by a task of its own on the cluster, as it comes in:
+    its PNG bytes, or the error its task raised. Only bytes come back, the caller writes the
+    files: with ``--scheduler`` the workers may be on another machine."""
+    from dask.distributed import as_completed
+
+    spec_f, table_f = client.scatter([spec, table], broadcast=True, hash=False)
+    futures = {client.submit(report.render, spec_f, table_f, s, pure=False): s for s in sheets}
+    for fut in as_completed(futures):
+        yield futures[fut], _png_or_error(fut)
+
+
+def _png_or_error(fut: Any) -> bytes | Exception:
+    try:
+        png: bytes = fut.result()
+    except Exception as exc:  # the task's own error, or its worker lost: the caller decides
+        return exc
+    return png

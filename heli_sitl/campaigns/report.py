@@ -11,14 +11,24 @@
   that converged and those that did not;
 * for ``saltelli``: first-order and total Sobol' indices of every numeric metric (SALib),
   ``sobol.csv`` and on the console.
+
+The figures are independent of each other: ``sheets`` lists them, ``render`` draws one to
+PNG bytes, the same bytes wherever it runs (a task on the campaign's Dask cluster, or here:
+``plots`` draws them all one after the other).
 """
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import gc
+import io
 import math
+import threading
+from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import pyarrow as pa
@@ -240,22 +250,132 @@ def _histogram(a: Any, v: np.ndarray, m: str) -> bool:
     return log
 
 
-def plots(spec: CampaignSpec, table: pa.Table, out: Path) -> list[Path]:
+@dataclass(frozen=True)
+class Sheet:
+    """One figure of a campaign, drawn on its own (a task of its own on a cluster)."""
+
+    name: str  # the PNG's file name in the campaign's directory
+    kind: Literal["hist", "vs", "map"]
+    key: str = ""  # vs: the setting on x; map of three settings: the third
+    level: float | None = None  # map of three settings: the third's level
+
+
+def sheets(spec: CampaignSpec) -> list[Sheet]:
+    """Every figure of the campaign, in the order campaign.json lists them: the histograms,
+    each metric against each varied setting, and for a grid the map(s)."""
+    out = [Sheet("hist.png", "hist")]
+    for k in spec.keys:
+        safe = k.replace(".", "_").replace("[", "_").replace("]", "")
+        out.append(Sheet(f"vs_{safe}.png", "vs", key=k))
+    if spec.sampler == "grid" and len(spec.keys) == 2:
+        out.append(Sheet("map.png", "map"))
+    if spec.sampler == "grid" and len(spec.keys) == 3:
+        k3 = spec.keys[2]
+        for level in spec.vary[2].levels():
+            out.append(Sheet(f"map_{k3.replace('.', '_')}_{level:g}.png", "map", key=k3, level=level))
+    return out
+
+
+#: pyplot keeps one list of open figures per process: a Dask worker with several threads
+#: draws one figure at a time
+_PYPLOT = threading.Lock()
+
+
+def render(spec: CampaignSpec, table: pa.Table, sheet: Sheet) -> bytes:
+    """One figure of ``sheet`` as PNG bytes (Agg), a function of the arguments alone: run on
+    a Dask worker (which may be on another machine: the caller writes the file) or here."""
     import matplotlib
 
-    matplotlib.use("Agg")
+    with _PYPLOT, _collector_paused():
+        matplotlib.use("Agg")
+        if sheet.kind == "hist":
+            return _hist_sheet(spec, table)
+        if sheet.kind == "vs":
+            return _vs_sheet(spec, table, sheet.key)
+        return _map_sheet(spec, table, sheet)
+
+
+@contextlib.contextmanager
+def _collector_paused() -> Iterator[None]:
+    """Python's cyclic garbage collector off while a figure is drawn. matplotlib makes some
+    10^5 objects a figure, alive until it closes, which with the collector on set off full
+    collections: each a walk over every object of the process, some 3x10^5 in a worker that
+    has flown (0.1-0.2 s a figure, a tenth of its time). The figure's garbage is freed as it
+    closes by a collection of the young objects alone."""
+    was_on = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if was_on:
+            gc.enable()
+        gc.collect(0)
+
+
+def plots(spec: CampaignSpec, table: pa.Table, out: Path) -> list[Path]:
+    """Every figure drawn here, one after the other, and written to ``out``."""
+    files = []
+    for sheet in sheets(spec):
+        files.append(out / sheet.name)
+        files[-1].write_bytes(render(spec, table, sheet))
+    return files
+
+
+def _lay_out(fig: Any) -> None:
+    """``fig.tight_layout()``, without the placeholder layout engine it leaves on the figure,
+    for which savefig would go through the whole figure once more before drawing it (to lay
+    it out again: no change)."""
+    from matplotlib.layout_engine import TightLayoutEngine
+
+    TightLayoutEngine().execute(fig)
+
+
+def _png(fig: Any, dpi: float, tight: bool) -> bytes:
+    """``fig`` (laid out by :func:`_lay_out`) as PNG, byte for byte as ``savefig(dpi=dpi,
+    bbox_inches="tight" if tight else None)``, which for "tight" goes through the whole figure
+    once before measuring the box; the box is measured directly."""
+    box = _tight_box_in(fig, dpi) if tight else None
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi, bbox_inches=box)
+    return buf.getvalue()
+
+
+def _tight_box_in(fig: Any, dpi: float) -> Any:
+    """The box savefig(bbox_inches="tight") crops to [in]: every artist's extent, measured
+    at the saving dpi (text extents depend on it), padded by savefig.pad_inches."""
+    from matplotlib import rcParams
+
+    shown = fig.dpi
+    fig.dpi = dpi
+    try:
+        box = fig.get_tightbbox(fig.canvas.get_renderer())
+    finally:
+        fig.dpi = shown
+    pad = rcParams["savefig.pad_inches"]
+    return box.padded(pad, pad)
+
+
+def _sheet(n: int) -> tuple[Any, list[Any]]:
+    """A figure of ``n`` panels, at most four across; a grid cell left over gets no axes (an
+    empty axes turned off would draw nothing and change no layout, but cost its share)."""
+    import matplotlib.pyplot as plt
+
+    cols = min(4, n)
+    rows_ = math.ceil(n / cols)
+    fig = plt.figure(figsize=(3.2 * cols, 2.6 * rows_))
+    grid = fig.add_gridspec(rows_, cols)
+    return fig, [fig.add_subplot(grid[i // cols, i % cols]) for i in range(n)]
+
+
+def _hist_sheet(spec: CampaignSpec, table: pa.Table) -> bytes:
     import matplotlib.pyplot as plt
 
     outcome = outcomes(table)
     ok = ~outcome["failed"]
     mets = numeric_metrics(spec)
-    files = []
-    n = len(mets)
-    cols = min(4, n)
-    rows_ = math.ceil(n / cols)
-    fig, axs = plt.subplots(rows_, cols, figsize=(3.2 * cols, 2.6 * rows_), squeeze=False)
+    fig, axs = _sheet(len(mets))
     any_log = False
-    for a, m in zip(axs.flat, mets, strict=False):
+    for a, m in zip(axs, mets, strict=True):
         v = _col(table, m)[ok]
         v = v[np.isfinite(v)]
         if v.size:
@@ -264,65 +384,67 @@ def plots(spec: CampaignSpec, table: pa.Table, out: Path) -> list[Path]:
             a.set_title(m, fontsize=8)
             _no_values(a)
         a.tick_params(which="both", labelsize=7)
-    for a in list(axs.flat)[n:]:
-        a.axis("off")
     failed = int(outcome["failed"].sum())
     title = f"campaign {spec.name}: {int(ok.sum())} flights flown"
     title += f" ({failed} more failed: no metrics)" if failed else ""
     if any_log:
         title += "\n(log x): log-spaced bins, for a positive metric that a few large values would squash"
     fig.suptitle(title, fontsize=9)
-    fig.tight_layout()
-    files.append(out / "hist.png")
-    fig.savefig(files[-1], dpi=100)
+    _lay_out(fig)
+    png = _png(fig, 100, tight=False)
     plt.close(fig)
+    return png
+
+
+def _vs_sheet(spec: CampaignSpec, table: pa.Table, k: str) -> bytes:
+    """Each metric against setting ``k``, one point per flight coloured by its outcome."""
+    import matplotlib.pyplot as plt
+
+    outcome = outcomes(table)
+    ok = ~outcome["failed"]
+    failed = int(outcome["failed"].sum())
+    mets = numeric_metrics(spec)
     # a failed flight has its settings but no metric: a cross on each panel's bottom edge
     handles = _outcome_legend(spec, table, outcome, "x on each panel's bottom edge")
-    for k in spec.keys:
-        x = _col(table, k)
-        fig, axs = plt.subplots(rows_, cols, figsize=(3.2 * cols, 2.6 * rows_), squeeze=False)
-        for a, m in zip(axs.flat, mets, strict=False):
-            y = _col(table, m)
-            title = m
-            if _log_axis(y[ok], zeros_ok=False):  # lost flights' metres beside the rest's mm
-                a.set_yscale("log")
-                _log_ticks(a.yaxis)
-                title += " (log y)"
-            for name, sel in outcome.items():
-                if name != "failed":
-                    a.plot(x[sel], y[sel], ls="none", ms=3, alpha=0.8, **OUTCOME_STYLE[name])
-            if failed:  # (an empty unclipped line would stretch the tight layout to the origin)
-                a.plot(x[outcome["failed"]], np.zeros(failed), ls="none", ms=5, clip_on=False,
-                       transform=a.get_xaxis_transform(), **OUTCOME_STYLE["failed"])  # fmt: skip
-            if not np.isfinite(y[ok]).any():
-                _no_values(a)
-            a.set_title(title, fontsize=8)
-            a.set_xlabel(k, fontsize=7)
-            a.tick_params(which="both", labelsize=7)
-        for a in list(axs.flat)[n:]:
-            a.axis("off")
-        fig.suptitle(f"campaign {spec.name}: each metric against {k}, one point per flight", fontsize=9)
-        fig.tight_layout()
-        # below the panels, never over a point; savefig's tight box takes it in
-        fig.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, 0.0),
-                   ncol=2 if cols > 2 else 1, fontsize=8, frameon=False)  # fmt: skip
-        safe = k.replace(".", "_").replace("[", "_").replace("]", "")
-        files.append(out / f"vs_{safe}.png")
-        fig.savefig(files[-1], dpi=100, bbox_inches="tight")
-        plt.close(fig)
-    if spec.sampler == "grid" and len(spec.keys) == 2:
-        files.append(grid_map(spec, table, out, np.ones(table.num_rows, bool), "map.png", ""))
-    if spec.sampler == "grid" and len(spec.keys) == 3:
-        k3 = spec.keys[2]
-        v3 = _col(table, k3)
-        for level in spec.vary[2].levels():
-            sel = np.isclose(v3, level)
-            name = f"map_{k3.replace('.', '_')}_{level:g}.png"
-            files.append(grid_map(spec, table, out, sel, name, f", {k3} = {level:g}"))
-    return files
+    x = _col(table, k)
+    fig, axs = _sheet(len(mets))
+    for a, m in zip(axs, mets, strict=True):
+        y = _col(table, m)
+        title = m
+        if _log_axis(y[ok], zeros_ok=False):  # lost flights' metres beside the rest's mm
+            a.set_yscale("log")
+            _log_ticks(a.yaxis)
+            title += " (log y)"
+        for name, sel in outcome.items():
+            if name != "failed":
+                a.plot(x[sel], y[sel], ls="none", ms=3, alpha=0.8, **OUTCOME_STYLE[name])
+        if failed:  # (an empty unclipped line would stretch the tight layout to the origin)
+            a.plot(x[outcome["failed"]], np.zeros(failed), ls="none", ms=5, clip_on=False,
+                   transform=a.get_xaxis_transform(), **OUTCOME_STYLE["failed"])  # fmt: skip
+        if not np.isfinite(y[ok]).any():
+            _no_values(a)
+        a.set_title(title, fontsize=8)
+        a.set_xlabel(k, fontsize=7)
+        a.tick_params(which="both", labelsize=7)
+    fig.suptitle(f"campaign {spec.name}: each metric against {k}, one point per flight", fontsize=9)
+    _lay_out(fig)
+    # below the panels, never over a point; the tight box takes it in
+    fig.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, 0.0),
+               ncol=2 if len(mets) > 2 else 1, fontsize=8, frameon=False)  # fmt: skip
+    png = _png(fig, 100, tight=True)
+    plt.close(fig)
+    return png
 
 
-def grid_map(spec: CampaignSpec, table: pa.Table, out: Path, sel: np.ndarray, name: str, note: str) -> Path:
+def _map_sheet(spec: CampaignSpec, table: pa.Table, sheet: Sheet) -> bytes:
+    """A grid's map: of two settings all flights; of three, those at the third's level."""
+    if sheet.level is None:
+        return _grid_map(spec, table, np.ones(table.num_rows, bool), "")
+    sel = np.isclose(_col(table, sheet.key), sheet.level)
+    return _grid_map(spec, table, sel, f", {sheet.key} = {sheet.level:g}")
+
+
+def _grid_map(spec: CampaignSpec, table: pa.Table, sel: np.ndarray, note: str) -> bytes:
     import matplotlib.pyplot as plt
     from matplotlib.lines import Line2D
 
@@ -357,8 +479,7 @@ def grid_map(spec: CampaignSpec, table: pa.Table, out: Path, sel: np.ndarray, na
                   f"(error < {spec.converge_m:g} m to the end; {n_conv})")  # fmt: skip
     handles = [edge, *_outcome_legend(spec, table, outcome, "a blank cell", marked)]
     ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.12), fontsize=7, frameon=False)
-    fig.tight_layout()
-    path = out / name
-    fig.savefig(path, dpi=110, bbox_inches="tight")
+    _lay_out(fig)
+    png = _png(fig, 110, tight=True)
     plt.close(fig)
-    return path
+    return png

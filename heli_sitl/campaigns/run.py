@@ -1,7 +1,10 @@
 """``heli-sitl campaign FILE --out DIR``: check the file, fly its samples on Dask, report.
 
 Re-running the same command on the same DIR resumes (the flights already written are
-skipped); DIR remembers which campaign it holds and refuses another one.
+skipped); DIR remembers which campaign it holds and refuses another one. The figures are
+drawn on the campaign's cluster before it closes (here, one after the other, when nothing
+was left to fly); a figure that cannot be drawn is reported, never at the cost of the
+results or campaign.json.
 """
 
 from __future__ import annotations
@@ -12,11 +15,14 @@ import json
 import math
 import os
 import platform
+import sys
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pyarrow as pa
 
 from autopilot.estimation.config import EstimatorConfig
 from autopilot.pid.gains import PidGains
@@ -135,6 +141,60 @@ def versions() -> dict[str, str]:
     }
 
 
+@dataclass
+class Figures:
+    """A campaign's figures, drawn on its cluster while it is up (:meth:`on_cluster`, given
+    to ``engine.run``), and here (:meth:`finish`) where no cluster ran or a figure's task
+    failed there: the same pictures either way (:func:`report.render` draws both)."""
+
+    spec: CampaignSpec
+    out: Path
+    quiet: bool = False
+    results: pa.Table | None = None  # the rows, collected while the cluster is up
+    written: set[str] = field(default_factory=set)
+    errors: dict[str, str] = field(default_factory=dict)  # not drawn: why
+    seconds: float = 0.0
+
+    def on_cluster(self, client: Any) -> None:
+        """Every flight is in: collect the rows, then one task per figure, each file written
+        here as its bytes come in."""
+        self.results = engine.collect(self.out, self.spec)
+        t0 = time.perf_counter()
+        plan = report.sheets(self.spec)
+        try:
+            for sheet, png in engine.render_figures(client, self.spec, self.results, plan):
+                if isinstance(png, bytes):
+                    (self.out / sheet.name).write_bytes(png)
+                    self.written.add(sheet.name)
+                else:
+                    self._say(f"figure {sheet.name}: its task failed on the cluster ({png!r}); drawn here")
+        except Exception as exc:  # the cluster itself (scheduler lost): the rest drawn here
+            self._say(f"figures: the cluster failed ({exc!r}); the rest drawn here")
+        self.seconds += time.perf_counter() - t0
+
+    def finish(self) -> tuple[pa.Table, list[str]]:
+        """Draw here every figure not drawn on the cluster: the rows, and the names of the
+        figures written in the campaign's order of figures."""
+        results = self.results if self.results is not None else engine.collect(self.out, self.spec)
+        t0 = time.perf_counter()
+        plan = report.sheets(self.spec)
+        for sheet in plan:
+            if sheet.name in self.written:
+                continue
+            try:
+                (self.out / sheet.name).write_bytes(report.render(self.spec, results, sheet))
+                self.written.add(sheet.name)
+            except Exception as exc:  # a figure is not worth the campaign's results: say so
+                self.errors[sheet.name] = repr(exc)
+                print(f"heli-sitl: figure {sheet.name} not drawn: {exc!r}", file=sys.stderr)
+        self.seconds += time.perf_counter() - t0
+        return results, [s.name for s in plan if s.name in self.written]
+
+    def _say(self, line: str) -> None:
+        if not self.quiet:
+            print(f"heli-sitl: {line}", file=sys.stderr)
+
+
 def run_campaign(
     path: str | Path | CampaignSpec,
     out: Path,
@@ -151,6 +211,7 @@ def run_campaign(
     n_workers = workers or os.cpu_count() or 1
     from tqdm import tqdm
 
+    figures = Figures(spec, out, quiet)
     with tqdm(
         total=table.shape[0], desc=f"campaign {spec.name}", unit="flight", disable=quiet, smoothing=0.1
     ) as bar:
@@ -160,9 +221,9 @@ def run_campaign(
             bar.set_postfix(failed=failed, refresh=False)
             bar.refresh()
 
-        stats = engine.run(spec, base, table, out, n_workers, scheduler, progress)
-    results = engine.collect(out, spec)
-    wall = time.perf_counter() - t_start
+        stats = engine.run(spec, base, table, out, n_workers, scheduler, progress, figures.on_cluster)
+    results, drawn = figures.finish()
+    wall = time.perf_counter() - t_start  # to the rows and the figures
     duration = spec.duration_s or base.scenario.run.duration_s
     c = CampaignCounts.of(results)
     rows = report.summary_rows(spec, results)
@@ -190,6 +251,7 @@ def run_campaign(
             "cluster_start_s": stats.cluster_start_s,
             "engine_wall_s": stats.wall_s,
             "flying_s": stats.flying_s,
+            "figures_s": figures.seconds,
             "total_wall_s": wall,
             "vehicle_s_per_wall_s": throughput,
             "in_worker_flight_rate": rate1,
@@ -204,7 +266,9 @@ def run_campaign(
         if sob:
             first = "rms_45_m" if "rms_45_m" in spec.metrics else sob[0]["metric"]
             text += "\n" + report.format_sobol(sob, first)
-    summary["figures"] = [p.name for p in report.plots(spec, results, out)]
+    summary["figures"] = drawn
+    if figures.errors:
+        summary["figure_errors"] = figures.errors
     (out / "campaign.json").write_text(json.dumps(summary, indent=2, default=str) + "\n")
     if not quiet:
         print(text)
@@ -214,7 +278,7 @@ def run_campaign(
                 f"{stats.flights} flights in {stats.flying_s:.1f} s on {workers_used} workers "
                 f"({stats.scheduler}, started in {stats.cluster_start_s:.1f} s): {throughput:,.0f} "
                 f"vehicle-s per wall-s = {eff:.0%} of {workers_used} x a worker's own pace "
-                f"({rate1:,.0f}x); {wall:.1f} s in all"
+                f"({rate1:,.0f}x); figures {figures.seconds:.1f} s; {wall:.1f} s in all"
             )
         print(f"wrote {out / engine.RESULTS}, {out / 'campaign.json'}, figures in {out}")
     return summary
