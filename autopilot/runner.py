@@ -30,12 +30,13 @@ from autopilot.estimation.log import N_EST_LOG
 from autopilot.estimation.onboard import OnboardEstimator
 from autopilot.flight.manager import FlightManager
 from autopilot.flight.modes import Mode
-from autopilot.metrics import CSV_HEADER, FlightRecord, rotor_record, write_rows
+from autopilot.metrics import CSV_HEADER, ROTOR_CSV, FlightRecord, rotor_record, write_rows
 from autopilot.reference import N_REF
+from autopilot.tick_timer import CONTROL, FLUSH, NAVIGATE, RECORD, SEND, SERVICES, TickTimer
 from heli_common.layout import Layout
 from heli_common.links import ServoOutput, StateSource
 from heli_common.mavlink.sim_protocol import N_ROTOR_TRUTH, StateSample
-from heli_common.state import N_PITCH, N_STATE, PHI, PSI, THETA, FloatArray
+from heli_common.state import N_PITCH, N_STATE, PHI, PSI, THETA, X_N, Y_W, Z_U, FloatArray
 
 log = logging.getLogger("autopilot.runner")
 LOCKSTEP_SPIN_S = 0.002  # poll this long before sleeping (see MavlinkUdp.wait)
@@ -95,6 +96,7 @@ class LoopStats:
     resumes: int = 0  # real time: ticks resumed after a gap (a stall or a silent plant)
     gap_max_s: float = 0.0
     work_s: list[float] = field(default_factory=list)  # real time: wall time of each tick's work
+    timer: TickTimer | None = None  # where each tick's time went (set by the runner)
 
     def summary(self) -> dict[str, Any]:
         lat = np.array(self.lateness_s) if self.lateness_s else np.zeros(1)
@@ -114,6 +116,7 @@ class LoopStats:
             "gap_max_s": self.gap_max_s,
             "tick_work_p99_ms": float(np.percentile(work, 99) * 1e3),
             "tick_work_max_ms": float(work.max() * 1e3),
+            **({} if self.timer is None else {"tick_sections": self.timer.summary()}),
         }
 
 
@@ -146,6 +149,7 @@ class Recorder:
         self._flushed = 0
         self._psi_before: float | None = None
         self._header_written = False
+        self._csv_cols: list[int] | None = None  # run.csv's columns in a row, set at the first flush
         self._fh: IO[str] | None = None
         self._csv: Any = None
         if stream_csv is not None:
@@ -159,18 +163,27 @@ class Recorder:
             self.flush()
 
     def flush(self) -> None:
-        """Append the rows recorded since the last flush to the streamed run.csv."""
+        """Append the rows recorded since the last flush to the streamed run.csv: run.csv's
+        columns gathered from the block in one take (the same numbers as
+        :meth:`FlightRecord.rows`, tested), with no record built."""
         if self._fh is None or self.n == self._flushed:
             return
-        rec = self.record(0.0, {}, start=self._flushed)
-        if not self._header_written:  # the rotor plant's columns where its plant reports them
-            self._csv.writerow(rec.header)
+        b = self.rows_array(self._flushed)
+        if self._csv_cols is None:  # the rotor plant's columns where its plant reports them
+            rotor = bool(np.isfinite(b[:, _COLS["rotor"]]).any())
+            self._csv_cols = _CSV_COLS_ROTOR if rotor else _CSV_COLS
+            self._csv.writerow(CSV_HEADER + ROTOR_CSV if rotor else CSV_HEADER)
             self._header_written = True
-        rows = rec.rows(self._psi_before)
+        rows = b[:, self._csv_cols]
+        psi = rows[:, _CSV_PSI]
+        if self._psi_before is None:
+            rows[:, _CSV_PSI] = np.unwrap(psi)
+        else:
+            rows[:, _CSV_PSI] = np.unwrap(np.concatenate([[self._psi_before], psi]))[1:]
         write_rows(self._fh, rows)
         self._fh.flush()
         self._flushed = self.n
-        self._psi_before = float(rows[-1, CSV_HEADER.index("psi")])
+        self._psi_before = float(rows[-1, _CSV_PSI])
 
     def close(self) -> None:
         if self._fh is not None:
@@ -214,12 +227,14 @@ class Recorder:
         if start >= self.n:
             return np.empty((0, self.WIDTH))
         first, last = start // self._block, max(start, self.n - 1) // self._block
-        if first == last:
-            i0 = start - first * self._block
-            return self._blocks[first][i0 : i0 + self.n - start]
-        out = np.concatenate(self._blocks[first : last + 1])
         i0 = start - first * self._block
-        return out[i0 : i0 + self.n - start]
+        if first == last:
+            return self._blocks[first][i0 : i0 + self.n - start]
+        # the rows wanted of each block, not the blocks: a flush that spans two blocks copied
+        # 6.6 MB for its 100 rows (2.5 ms, measured; a skipped tick at 400 Hz)
+        i1 = self.n - last * self._block
+        parts = [self._blocks[first][i0:], *self._blocks[first + 1 : last], self._blocks[last][:i1]]
+        return np.concatenate(parts)
 
     def record(
         self, wall_s: float, extra: dict[str, Any], pitches: FloatArray | None = None, start: int = 0
@@ -273,7 +288,8 @@ class Runner:
         self._last_t_s = 0.0
         self._last_x: FloatArray | None = None
         self.recorder = recorder
-        self.stats = LoopStats()
+        self.timer = TickTimer(self.clock.perf_counter)
+        self.stats = LoopStats(timer=self.timer)
         self.u = np.zeros(N_PITCH)
         self.wall_s = 0.0
         self._wall0: float | None = None
@@ -305,6 +321,8 @@ class Runner:
         ``t_us``) before the tick hooks run. ``t_us`` None: compute only, send nothing.
         ``x`` is the plant's state; flying from sensors, the tick runs on the estimate and
         ``x`` goes to the record only (the truth beside it)."""
+        sec = self.timer
+        sec.begin()
         truth = x
         x = self._navigate(t_s, truth)
         self._last_t_s, self._last_x = t_s, x
@@ -314,25 +332,30 @@ class Runner:
         if self._wall0 is None and self.flight.armed:
             self._wall0 = self.clock.perf_counter()
             self._t_arm_s = t_s
+        sec.lap(NAVIGATE)
         ref = self.flight.reference(t_s, x)
         if ref is None:  # disarmed: rotor idle at zero pitch, nothing integrates
             self.ctrl.reset()
             self.u = np.zeros(N_PITCH)
+            sec.lap(CONTROL)
         else:
             hold = self.flight.hold_integrators(x, ref)
             u = self.ctrl.update(t_s, x, ref, hold_integrators=hold)
             if self.ctrl.status != OK:
                 self.stats.bad_outputs += 1
             self.u = u
+            sec.lap(CONTROL)
             if self.recorder is not None:  # flight time: since arming
                 landing = self.flight.mode is Mode.LAND
                 est = None if self.nav is None else self.nav.log_row
                 self.recorder.add(t_s - self._t_arm_s, truth, ref, u, self.ctrl.diag,
                                   self.manager.trajectory_time(t_s), landing, self.sample,
                                   None if est is None else x, est)  # fmt: skip
+                sec.lap(RECORD)
         self.stats.ticks += 1
         if t_us is not None:
             self.servo_out.send_pitches(t_us, self.u, self.flight.armed)
+        sec.lap(SEND)
         self.manager.post_tick(t_s, x)
         d = self.ctrl.diag
         att_cmd = (float(d[D_PHI_C]), float(d[D_THETA_C]), float(d[D_PSI_C]))
@@ -341,8 +364,11 @@ class Runner:
         for s in self.services:
             s.after_tick(t_s, x, ref, self.u, att_cmd)
         self.service(t_s, x)
+        sec.lap(SERVICES)
         if self.recorder is not None:  # after the command went out
             self.recorder.flush_if_due()
+        sec.lap(FLUSH)
+        sec.end(t_s)
         return self.u
 
     def _done(self, t_s: float) -> bool:
@@ -404,10 +430,11 @@ class Runner:
         if self.state_in is None:
             raise ValueError("Runner.run needs a state source")
         gc.freeze()  # start-up objects (numba, scipy) never need rescanning during the flight
-        if self.cfg.mode == "lockstep":
-            self._run_lockstep(stop, self.state_in)
-        else:
-            self._run_realtime(stop, self.state_in)
+        with self.timer:  # the collector's pauses, timed while the loop runs
+            if self.cfg.mode == "lockstep":
+                self._run_lockstep(stop, self.state_in)
+            else:
+                self._run_realtime(stop, self.state_in)
         if self._wall0 is not None:
             self.wall_s = self.clock.perf_counter() - self._wall0
         return self.stats
@@ -454,6 +481,9 @@ class Runner:
             late = wake - deadline
             if late > self.cfg.skip_after_periods * period:
                 skip = int(late / period)
+                # asleep past the deadline: the OS woke us late; awake: the tick before overran
+                self.timer.skipped(k * period, late, late if delay > 0 else 0.0,
+                                   self.stats.work_s[-1] if self.stats.work_s else 0.0)  # fmt: skip
                 self.stats.skipped_ticks += skip
                 self.stats.overruns += 1
                 k += skip
@@ -469,8 +499,11 @@ class Runner:
             elif latest is not None:
                 self.stats.stale_ticks += 1
             if latest is None:  # the plant has not spoken yet: wait for it, clock not started
-                start = self.clock.monotonic()
                 src.latest_state(0.01)  # keep the socket drained
+                # the schedule starts after the wait: a wait is no deadline missed (it was
+                # counted as four skipped ticks each time round)
+                start = self.clock.monotonic()
+                k = 0
                 s = src.latest_state(0.0)
                 if s is not None:
                     self.warm_up(s.x)
@@ -502,3 +535,14 @@ _COLS: dict[str, Any] = {
     else slice(Recorder.ROW.offset(name), Recorder.ROW.offset(name) + Recorder.ROW.size_of(name))
     for name in Recorder.ROW.names
 }  # fmt: skip
+
+# run.csv's columns (autopilot.metrics.CSV_HEADER, then ROTOR_CSV on the rotor plant) as
+# positions in a recorder row, for the streamed flush
+_X0, _REF0, _U0, _DIAG0 = (Recorder.ROW.offset(k) for k in ("x", "ref", "u", "diag"))
+_CSV_COLS = [
+    _COLS["t"], *(_X0 + i for i in (X_N, Y_W, Z_U, PHI, THETA, PSI)), *(_REF0 + i for i in range(3)),
+    _DIAG0 + D_PSI_C, *(_U0 + i for i in range(N_PITCH)), _DIAG0 + D_PHI_C, _DIAG0 + D_THETA_C,
+]  # fmt: skip
+_ROTOR0 = Recorder.ROW.offset("rotor")
+_CSV_COLS_ROTOR = [*_CSV_COLS, *range(_ROTOR0, _ROTOR0 + N_ROTOR_TRUTH)]
+_CSV_PSI = CSV_HEADER.index("psi")

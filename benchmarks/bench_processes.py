@@ -10,6 +10,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -83,7 +84,27 @@ def bench_lockstep() -> list[Row]:
                         *below(tick_us / floor, 3.0)))  # fmt: skip
     rms45 = window_45(s)
     rows.append(Row("paper 120 s at 100 Hz: RMS error [45, 120] s", rms45, "m", *below(rms45, 0.05)))
+    alone, together = concurrent_lockstep_s(1), concurrent_lockstep_s(2)
+    rows.append(Row("floor: one lockstep flight (60 s, autostart) alone, wall", alone, "s"))
+    rows.append(Row("  two at once on the machine's cores: each one's wall / alone", together / alone, "x",
+                    *below(together / alone, 2.0)))  # fmt: skip
     return rows
+
+
+def concurrent_lockstep_s(n: int) -> float:
+    """The slowest wall time of ``n`` lockstep flights started at once (`heli-sitl demo`, 60 s,
+    autostart): a lockstep wait that spins without yielding holds the core its partner needs
+    (two at once took 30 s each against 5 s alone before the spin yielded)."""
+    with tempfile.TemporaryDirectory() as d:
+        cmd = [sys.executable, "-m", "heli_sitl.cli", "demo", "--mode", "lockstep", "--autostart",
+               "--duration-s", "60"]  # fmt: skip
+        t0 = time.perf_counter()
+        procs = [subprocess.Popen([*cmd, "--out", f"{d}/{i}"], stdout=subprocess.DEVNULL,
+                                  stderr=subprocess.DEVNULL) for i in range(n)]  # fmt: skip
+        for p in procs:
+            if p.wait(timeout=600) != 0:
+                raise RuntimeError(f"a lockstep demo failed (exit {p.returncode})")
+        return time.perf_counter() - t0
 
 
 def window_45(summary: dict[str, object]) -> float:
@@ -123,7 +144,21 @@ def bench_realtime_400() -> list[Row]:
             f"<= floor ({floor['skipped']:g})", skipped_min <= floor["skipped"]),
         Row("ticks with no new state", loop["stale_ticks"], "ticks"),
         Row("RMS error [45, 120] s", rms, "m", *below(rms, 1.2 * 0.0402)),
+        *tick_section_rows(loop["tick_sections"]),
     ]  # fmt: skip
+
+
+def tick_section_rows(sections: dict[str, Any]) -> list[Row]:
+    """Where the ticks' time went (autopilot.tick_timer): each section's worst tick, the
+    collector's longest pause, and what the skipped ticks were (a tick that overran, or a
+    sleep the OS woke late)."""
+    rows = [Row(f"  tick section max: {name}", ms, "ms") for name, ms in sections["section_max_ms"].items()]
+    rows.append(Row("  collector pause max (generation 0 / 1 / 2 at most)", max(sections["gc_max_ms"]), "ms"))
+    skips = sections["skips"]
+    overslept = sum(1 for s in skips if s["overslept_ms"] > 0.0)
+    rows.append(Row("  skip events: asleep past the deadline (the OS)", overslept, "events"))
+    rows.append(Row("  skip events: the tick before overran", len(skips) - overslept, "events"))
+    return rows
 
 
 @bench("processes, lockstep (DroneCAN)")

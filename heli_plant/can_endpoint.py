@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -200,6 +201,8 @@ class CanServoEndpoint(Closing):
                 break
             if msg is None:
                 if waiting:
+                    if timeout_s == 0.0:  # spinning: let a process waiting for this core run
+                        os.sched_yield()
                     continue
                 break
             frames += 1

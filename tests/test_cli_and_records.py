@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import importlib
 import json
+import math
 import signal
 import subprocess
 import sys
@@ -176,3 +177,26 @@ def test_the_recorder_keeps_every_row_across_its_blocks(n: int) -> None:
         assert np.array_equal(rows[:, 1], np.arange(start, n, dtype=float))
     rec = r.record(0.0, {})
     assert rec.t_s.size == n and np.array_equal(rec.traj_t_s, np.arange(n, dtype=float))
+
+
+@pytest.mark.parametrize("rotor", [False, True])
+def test_the_streamed_run_csv_is_the_records_csv(tmp_path: Path, rotor: bool) -> None:
+    """run.csv streamed as it flies (flushed every 5 rows, across blocks of 7, the yaw wrapping
+    past +-pi between flushes, the rotor plant's columns where its truth comes) is byte for
+    byte the csv the whole record writes at the end."""
+    from autopilot.runner import Recorder
+    from heli_common.mavlink.sim_protocol import StateSample
+
+    rng = np.random.default_rng(3)
+    r = Recorder(capacity=7, stream_csv=tmp_path / "run.csv", flush_every=5)
+    for k in range(33):
+        x = rng.normal(size=12)
+        x[5] = (0.4 * k + math.pi) % (2 * math.pi) - math.pi  # yaw turning: wraps every ~16 rows
+        truth = StateSample(k, x, rotor=tuple(rng.normal(size=4)) if rotor else None)  # type: ignore[arg-type]
+        r.add(k * 0.01, x, rng.normal(size=9), rng.normal(size=4), rng.normal(size=7), k, False, truth)
+        r.flush_if_due()
+    r.close()
+    r.record(0.0, {}).write_csv(tmp_path / "whole.csv")
+    streamed = (tmp_path / "run.csv").read_text()
+    assert streamed == (tmp_path / "whole.csv").read_text()
+    assert streamed.splitlines()[0].endswith("throttle") == rotor and len(streamed.splitlines()) == 34

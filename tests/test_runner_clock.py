@@ -3,6 +3,7 @@ recovery and a silent plant, each with exact counts (no real sleeping, no socket
 
 from __future__ import annotations
 
+import gc
 import threading
 from dataclasses import dataclass, field
 
@@ -13,6 +14,7 @@ from autopilot.flight.commands import Arm
 from autopilot.flight.manager import FlightConfig, FlightManager
 from autopilot.runner import RESUME_GAP_S, LoopStats, Runner, RunnerConfig
 from autopilot.scenario import Scenario
+from autopilot.tick_timer import CONTROL, TickTimer
 from autopilot.tlc.controller import TLController
 from heli_common.geo import GeoPoint
 from heli_common.mavlink.sim_protocol import StateSample
@@ -206,6 +208,26 @@ def test_far_behind_skips_whole_periods_and_stays_on_the_grid(paper: Scenario) -
     assert [s.at_s for s in b.servos.sent] == _grid(range(5)) + [9.5 * P] + _grid(range(10, 14))
     assert stats.lateness_s == [0.0] * 5 + [0.5 * P] + [0.0] * 4  # the skipping pass is no tick
     assert stats.resumes == 0 and stats.stale_ticks == 0
+    # the tick timer names the cause: the send section of tick 4 (where the work was), the
+    # skip a tick that overran (awake, not asleep past its deadline)
+    sections = stats.summary()["tick_sections"]
+    assert sections["section_max_ms"]["send"] == 5.5 * P * 1e3
+    assert max(v for k, v in sections["section_max_ms"].items() if k != "send") == 0.0
+    worst = sections["worst_ticks"][0]
+    assert worst["t_s"] == 4 * P and worst["total_ms"] == worst["send_ms"] == 5.5 * P * 1e3
+    assert sections["skips"] == [{"t_s": 5 * P, "late_ms": 4.5 * P * 1e3, "overslept_ms": 0.0,
+                                  "prev_work_ms": 5.5 * P * 1e3}]  # fmt: skip
+
+
+def test_waiting_for_the_first_state_misses_no_deadline(paper: Scenario) -> None:
+    """The plant is silent for the first 0.1 s (13 periods): the loop waits for it, 10 ms a
+    time round, with its clock not started; the waits are counted as no overrun and no
+    skipped tick (each was one overrun before), and the first tick is on time."""
+    n = 5
+    b = _bench(paper, n, silent=(0.0, 0.1))
+    stats = b.run()
+    assert stats.ticks == n and stats.overruns == 0 and stats.skipped_ticks == 0
+    assert stats.lateness_s == [0.0] * n and stats.summary()["tick_sections"]["skips"] == []
 
 
 def test_stall_longer_than_resume_gap_resumes_once_with_the_gap(paper: Scenario) -> None:
@@ -223,6 +245,10 @@ def test_stall_longer_than_resume_gap_resumes_once_with_the_gap(paper: Scenario)
     assert stats.skipped_ticks == skipped and stats.overruns == 1
     assert b.ticks.t_s == _grid([*range(5), *range(5 + skipped, 5 + skipped + n - 5)])
     assert stats.lateness_s[5] == pytest.approx(stall_s - skipped * P, abs=1e-9)
+    # the tick timer: asleep past the deadline (the OS, here the stop), no tick overran
+    (skip,) = stats.summary()["tick_sections"]["skips"]
+    assert skip["overslept_ms"] == skip["late_ms"] == pytest.approx(stall_s * 1e3, abs=1e-6)
+    assert skip["prev_work_ms"] == 0.0
 
 
 def test_silent_plant_sends_nothing_while_stale_then_resumes(paper: Scenario) -> None:
@@ -252,3 +278,39 @@ def test_flight_wall_time_is_read_on_the_injected_clock(paper: Scenario) -> None
     stats = b.run()
     assert stats.ticks == n
     assert b.runner.wall_s == (n - 1) * P
+
+
+class TickingClock:
+    """Each read is one millisecond after the one before."""
+
+    def __init__(self) -> None:
+        self.reads = 0
+
+    def perf_counter(self) -> float:
+        self.reads += 1
+        return (self.reads - 1) * 1e-3
+
+
+def test_the_tick_timer_times_the_collector_inside_a_tick() -> None:
+    """A full collection inside a tick: counted as generation 2, its pause (two clock reads,
+    1 ms apart) in the tick's row; none counted once the timer is closed."""
+    clock = TickingClock()
+    timer = TickTimer(clock.perf_counter)
+    enabled = gc.isenabled()
+    gc.disable()  # no automatic collection between the reads below
+    try:
+        with timer:
+            timer.begin()  # read 0 ms
+            gc.collect()  # reads 1 and 2 ms
+            timer.lap(CONTROL)  # read 3 ms
+            timer.end(0.5)
+        gc.collect()
+    finally:
+        if enabled:
+            gc.enable()
+    s = timer.summary()
+    assert s["gc_collections"] == [0, 0, 1] and s["gc_max_ms"][2] == pytest.approx(1.0)
+    assert s["section_max_ms"]["control"] == pytest.approx(3.0)
+    assert s["worst_ticks"] == [pytest.approx({"t_s": 0.5, "total_ms": 3.0, "gc_ms": 1.0, "navigate_ms": 0.0,
+                                               "control_ms": 3.0, "record_ms": 0.0, "send_ms": 0.0,
+                                               "services_ms": 0.0, "flush_ms": 0.0})]  # fmt: skip
