@@ -204,9 +204,7 @@ class FlightRecord:
     def rows(self, psi_before: float | None = None) -> FloatArray:
         """The CSV rows; psi unwrapped (continuing from ``psi_before``, the unwrapped psi of
         the row before these, when the rows are a later part of a flight)."""
-        psi = np.unwrap(self.x[:, PSI])
-        if psi_before is not None and psi.size:
-            psi = np.unwrap(np.concatenate([[psi_before], self.x[:, PSI]]))[1:]
+        psi = unwrap_after(self.x[:, PSI], psi_before)
         e = self.x[:, EULER].copy()
         e[:, 2] = psi
         att = self.att_cmd if self.att_cmd is not None else np.full((self.t_s.size, 2), np.nan)
@@ -263,6 +261,14 @@ def rotor_record(truth: FloatArray) -> FloatArray:
     for i, k in enumerate(("a1_rad", "b1_rad", "omega_rad_s", "throttle")):
         out[:, ROTOR_RECORD.index(k)] = truth[:, i]
     return out
+
+
+def unwrap_after(psi: FloatArray, psi_before: float | None) -> FloatArray:
+    """``psi`` unwrapped, continuing from ``psi_before`` (the unwrapped value of the sample
+    before these, when they are a later part of a flight; None: they are the first)."""
+    if psi_before is None or not psi.size:
+        return np.asarray(np.unwrap(psi))
+    return np.asarray(np.unwrap(np.concatenate([[psi_before], psi]))[1:])
 
 
 def format_rows(rows: FloatArray) -> str:

@@ -30,7 +30,7 @@ from autopilot.estimation.log import N_EST_LOG
 from autopilot.estimation.onboard import OnboardEstimator
 from autopilot.flight.manager import FlightManager
 from autopilot.flight.modes import Mode
-from autopilot.metrics import CSV_HEADER, ROTOR_CSV, FlightRecord, rotor_record, write_rows
+from autopilot.metrics import CSV_HEADER, ROTOR_CSV, FlightRecord, rotor_record, unwrap_after, write_rows
 from autopilot.reference import N_REF
 from autopilot.tick_timer import CONTROL, FLUSH, NAVIGATE, RECORD, SEND, SERVICES, TickTimer
 from heli_common.layout import Layout
@@ -175,11 +175,7 @@ class Recorder:
             self._csv.writerow(CSV_HEADER + ROTOR_CSV if rotor else CSV_HEADER)
             self._header_written = True
         rows = b[:, self._csv_cols]
-        psi = rows[:, _CSV_PSI]
-        if self._psi_before is None:
-            rows[:, _CSV_PSI] = np.unwrap(psi)
-        else:
-            rows[:, _CSV_PSI] = np.unwrap(np.concatenate([[self._psi_before], psi]))[1:]
+        rows[:, _CSV_PSI] = unwrap_after(rows[:, _CSV_PSI], self._psi_before)
         write_rows(self._fh, rows)
         self._fh.flush()
         self._flushed = self.n
