@@ -216,7 +216,13 @@ def test_gps_loss_over_the_ground_station_holds_then_lands(tmp_path: Path) -> No
     with GroundClient(gcs_port) as gc:
         gc.listeners.append(record)
         gc.connect(60.0)
-        time.sleep(3.0)
+        # the GPS goes at 2 s of the vehicle's clock, not of the test's: on a loaded machine
+        # the link comes up late, and a late loss leaves the landing no time in the flight
+        # (2 s + 1 s to declare + 10 s holding + ~12 s descending from 5 m + disarm < 32 s)
+        deadline = time.monotonic() + 30.0
+        while not any(k == "gps" and t >= 2.0 and fix == 3 for k, t, fix, _ in seen):
+            assert time.monotonic() < deadline, "no 3-D fix reported by 2 s of flight"
+            gc.spin(0.05)
         assert gc.param_set("SIM_GPS_DISABLE", 1.0).accepted
         while flight.is_alive():
             gc.spin(0.2)
