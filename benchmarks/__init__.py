@@ -10,6 +10,8 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import NamedTuple
 
+import heli_common  # noqa: F401  (first: one BLAS thread, as every process of ours has)
+
 
 class Row(NamedTuple):
     name: str

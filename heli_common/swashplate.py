@@ -47,6 +47,8 @@ import numpy as np
 import numpy.typing as npt
 
 from heli_common.config import ConfigError, load, spec
+from heli_common.jit import njit
+from heli_common.layout import Layout
 from heli_common.state import EPS, ETA, N_PITCH, THETA_M, THETA_T, FloatArray
 
 AP_COMMIT = "90700977c553d2dfd95a305acf1c3e098e4d9477"  # ArduPilot master, July 2025, Copter 4.7.0-dev
@@ -600,6 +602,90 @@ class PitchReading:
 
 SWASH_TYPES = tuple(t.name for t in SwashType)
 
+# The head's numbers that PWM -> pitches needs, flat for the compiled kernel (built once by
+# Swashplate._kernel_params): the backend reads a servo frame 400 times a second
+SWASH_PARAMS = Layout(
+    "swashplate parameters",
+    ("pwm_min_us", 3), ("pwm_max_us", 3), ("pwm_neutral_us", 3),
+    ("direction", 3),  # +1, or -1 for a reversed servo (PWM above neutral lowers the ball)
+    ("arm_max_rad", 1), ("sin_arm_max", 1),  # the arm's swing at 500 us; 0: linear ball travel
+    ("plate_from_servos", 9),  # (height, front-up tilt, left-up tilt) from the travels, row-major
+    ("theta_m_at_neutral_rad", 1),
+    ("collective_rad_per_us", 1),  # signed: negative when the collective is reversed
+    ("cyclic_rad_per_us", 1), ("cos_phase", 1), ("sin_phase", 1),
+    ("blade_min_rad", 3), ("blade_max_rad", 3),  # the mechanical limits of (theta_m, eps, eta)
+)  # fmt: skip
+SP_PWM_MIN = SWASH_PARAMS.offset("pwm_min_us")
+SP_PWM_MAX = SWASH_PARAMS.offset("pwm_max_us")
+SP_PWM_NEUTRAL = SWASH_PARAMS.offset("pwm_neutral_us")
+SP_DIRECTION = SWASH_PARAMS.offset("direction")
+SP_ARM_MAX = SWASH_PARAMS.offset("arm_max_rad")
+SP_SIN_ARM_MAX = SWASH_PARAMS.offset("sin_arm_max")
+SP_PLATE = SWASH_PARAMS.offset("plate_from_servos")
+SP_THETA_M0 = SWASH_PARAMS.offset("theta_m_at_neutral_rad")
+SP_COLLECTIVE = SWASH_PARAMS.offset("collective_rad_per_us")
+SP_CYCLIC = SWASH_PARAMS.offset("cyclic_rad_per_us")
+SP_COS_PHASE = SWASH_PARAMS.offset("cos_phase")
+SP_SIN_PHASE = SWASH_PARAMS.offset("sin_phase")
+SP_BLADE_MIN = SWASH_PARAMS.offset("blade_min_rad")
+SP_BLADE_MAX = SWASH_PARAMS.offset("blade_max_rad")
+N_SWASH_PARAMS = SWASH_PARAMS.size
+N_SWASH_SERVOS = 3
+# the plate's coordinates in its travel vector, and the blades' in theirs
+PLATE_HEIGHT, PLATE_TILT_FRONT, PLATE_TILT_LEFT = range(3)
+BLADE_THETA_M, BLADE_EPS, BLADE_ETA = range(3)
+# a servo's ball travel [us] per unit of normalised arm travel: +-500 us from neutral
+_HALF_TRAVEL_US = 500.0
+
+
+@njit
+def clip_blades(blades: FloatArray, prm: FloatArray) -> int:
+    """Clip ``(theta_m, eps, eta)`` [rad] to the head's limits in place; how many were clipped."""
+    clipped = 0
+    for i in range(N_SWASH_SERVOS):
+        c = min(max(blades[i], prm[SP_BLADE_MIN + i]), prm[SP_BLADE_MAX + i])
+        clipped += c != blades[i]
+        blades[i] = c
+    return clipped
+
+
+@njit
+def swash_pitches_kernel(pwm_us: FloatArray, prm: FloatArray) -> tuple[float, float, float, int, int]:
+    """SERVO1-3 PWM [us] -> ``(theta_m, eps, eta [rad], refused, saturated)`` for the head
+    ``prm`` (layout :data:`SWASH_PARAMS`): each servo's PWM (a non-finite one read as its
+    neutral, one outside its travel clipped: both refused) -> ball travel [us] (through the
+    arm's sine if it has one) -> plate height and tilt -> blade pitches after the head's
+    phase, clipped at its limits (saturated)."""
+    travel = np.empty(N_SWASH_SERVOS)
+    refused = 0
+    for i in range(N_SWASH_SERVOS):
+        lo, hi, mid = prm[SP_PWM_MIN + i], prm[SP_PWM_MAX + i], prm[SP_PWM_NEUTRAL + i]
+        p = pwm_us[i]
+        if not math.isfinite(p):
+            p = mid
+            refused += 1
+        elif p < lo or p > hi:
+            refused += 1
+        p = min(max(p, lo), hi)
+        u = (p - mid) / _HALF_TRAVEL_US * prm[SP_DIRECTION + i]
+        if prm[SP_ARM_MAX] > 0.0:
+            u = math.sin(prm[SP_ARM_MAX] * u) / prm[SP_SIN_ARM_MAX]
+        travel[i] = _HALF_TRAVEL_US * u
+    plate = np.zeros(N_SWASH_SERVOS)
+    for row in range(N_SWASH_SERVOS):
+        for col in range(N_SWASH_SERVOS):
+            plate[row] += prm[SP_PLATE + N_SWASH_SERVOS * row + col] * travel[col]
+    height, tilt_p, tilt_r = plate[PLATE_HEIGHT], plate[PLATE_TILT_FRONT], plate[PLATE_TILT_LEFT]
+    c, s = prm[SP_COS_PHASE], prm[SP_SIN_PHASE]
+    disc_p, disc_r = tilt_p * c - tilt_r * s, tilt_r * c + tilt_p * s
+    kc = prm[SP_CYCLIC]
+    blades = np.empty(N_SWASH_SERVOS)
+    blades[BLADE_THETA_M] = prm[SP_THETA_M0] + prm[SP_COLLECTIVE] * height
+    blades[BLADE_EPS] = -kc * disc_p
+    blades[BLADE_ETA] = kc * disc_r
+    saturated = clip_blades(blades, prm)
+    return blades[BLADE_THETA_M], blades[BLADE_EPS], blades[BLADE_ETA], refused, saturated
+
 
 @dataclass(frozen=True)
 class Swashplate:
@@ -644,26 +730,38 @@ class Swashplate:
     def _plate_from_servos(self) -> FloatArray:
         return np.asarray(np.linalg.inv(self.servo_matrix))
 
+    @functools.cached_property
+    def _kernel_params(self) -> FloatArray:
+        """The head as :data:`SWASH_PARAMS`, for :func:`swash_pitches_kernel`."""
+        s, h = self.servos, self.head
+        prm = np.zeros(N_SWASH_PARAMS)
+        n = N_SWASH_SERVOS
+        prm[SP_PWM_MIN : SP_PWM_MIN + n] = s.pwm_min_us
+        prm[SP_PWM_MAX : SP_PWM_MAX + n] = s.pwm_max_us
+        prm[SP_PWM_NEUTRAL : SP_PWM_NEUTRAL + n] = s.pwm_neutral_us
+        prm[SP_DIRECTION : SP_DIRECTION + n] = [-1.0 if r else 1.0 for r in s.reversed]
+        if s.arm_max_deg > 0.0:
+            prm[SP_ARM_MAX] = math.radians(s.arm_max_deg)
+            prm[SP_SIN_ARM_MAX] = math.sin(prm[SP_ARM_MAX])
+        prm[SP_PLATE : SP_PLATE + n * n] = self._plate_from_servos.reshape(-1)
+        k = h.theta_m_per_us_rad
+        prm[SP_THETA_M0] = h.theta_m_at_neutral_rad
+        prm[SP_COLLECTIVE] = (-1.0 if h.collective_reversed else 1.0) * k
+        prm[SP_CYCLIC] = h.cyclic_ratio * k
+        prm[SP_COS_PHASE] = math.cos(math.radians(h.phase_deg))
+        prm[SP_SIN_PHASE] = math.sin(math.radians(h.phase_deg))
+        prm[SP_BLADE_MIN : SP_BLADE_MIN + n] = (h.theta_m_rad[0], h.eps_rad[0], h.eta_rad[0])
+        prm[SP_BLADE_MAX : SP_BLADE_MAX + n] = (h.theta_m_rad[1], h.eps_rad[1], h.eta_rad[1])
+        prm.flags.writeable = False  # shared by every call: a kernel must not change it
+        return prm
+
     @property
     def cyclic_max_rad(self) -> float:
         """The largest cyclic (eps, eta) radius inside the head's limits."""
         h = self.head
         return float(min(-h.eps_rad[0], h.eps_rad[1], -h.eta_rad[0], h.eta_rad[1]))
 
-    # --- servo PWM <-> ball travel -------------------------------------------------------------
-
-    def _ball_travel(self, pwm: FloatArray) -> tuple[FloatArray, int]:
-        s = self.servos
-        lo, hi, mid = np.array(s.pwm_min_us), np.array(s.pwm_max_us), np.array(s.pwm_neutral_us)
-        finite = np.isfinite(pwm)
-        p = np.where(finite, pwm, mid)
-        bad = ~finite | (p < lo) | (p > hi)
-        p = np.clip(p, lo, hi)
-        u = (p - mid) / 500.0 * np.where(np.array(s.reversed), -1.0, 1.0)
-        if s.arm_max_deg > 0.0:
-            a = math.radians(s.arm_max_deg)
-            u = np.sin(a * u) / math.sin(a)
-        return 500.0 * u, int(np.count_nonzero(bad))
+    # --- ball travel -> servo PWM (PWM -> travel -> blades: swash_pitches_kernel) --------------
 
     def _servo_pwm(self, travel_us: FloatArray) -> FloatArray:
         s = self.servos
@@ -674,18 +772,7 @@ class Swashplate:
         p = np.array(s.pwm_neutral_us) + 500.0 * h * np.where(np.array(s.reversed), -1.0, 1.0)
         return np.asarray(np.clip(p, s.pwm_min_us, s.pwm_max_us))
 
-    # --- plate <-> blades ----------------------------------------------------------------------
-
-    def _blades_from_plate(self, plate: FloatArray) -> FloatArray:
-        """(H, P, R) [us] -> unclipped (theta_m, eps, eta) [rad]."""
-        h = self.head
-        k = h.theta_m_per_us_rad
-        height, tilt_p, tilt_r = float(plate[0]), float(plate[1]), float(plate[2])
-        c, s = math.cos(math.radians(h.phase_deg)), math.sin(math.radians(h.phase_deg))
-        disc_p, disc_r = tilt_p * c - tilt_r * s, tilt_r * c + tilt_p * s
-        sign = -1.0 if h.collective_reversed else 1.0
-        kc = h.cyclic_ratio * k
-        return np.array([h.theta_m_at_neutral_rad + sign * k * height, -kc * disc_p, kc * disc_r])
+    # --- blades -> plate -----------------------------------------------------------------------
 
     def _plate_from_blades(self, theta_m: float, eps: float, eta: float) -> FloatArray:
         h = self.head
@@ -697,13 +784,6 @@ class Swashplate:
         return np.array([sign * (theta_m - h.theta_m_at_neutral_rad) / k, disc_p * c + disc_r * s,
                          disc_r * c - disc_p * s])  # fmt: skip
 
-    def _clip_blades(self, b: FloatArray) -> tuple[FloatArray, int]:
-        h = self.head
-        lo = np.array([h.theta_m_rad[0], h.eps_rad[0], h.eta_rad[0]])
-        hi = np.array([h.theta_m_rad[1], h.eps_rad[1], h.eta_rad[1]])
-        c = np.clip(b, lo, hi)
-        return c, int(np.count_nonzero(c != b))
-
     # --- public mappings -------------------------------------------------------------------------
 
     def swash_pitches(self, pwm_us: npt.ArrayLike) -> tuple[tuple[float, float, float], int, int]:
@@ -711,9 +791,8 @@ class Swashplate:
         pwm = np.asarray(pwm_us, dtype=float).reshape(-1)[:3]
         if pwm.shape != (3,):
             raise ValueError(f"need 3 swash servo PWMs, got {pwm.size}")
-        travel, refused = self._ball_travel(pwm)
-        blades, saturated = self._clip_blades(self._blades_from_plate(self._plate_from_servos @ travel))
-        return (float(blades[0]), float(blades[1]), float(blades[2])), refused, saturated
+        theta_m, eps, eta, refused, saturated = swash_pitches_kernel(pwm, self._kernel_params)
+        return (theta_m, eps, eta), refused, saturated
 
     def tail_pitch(self, pwm_us: float) -> tuple[float, int]:
         """SERVO4 PWM [us] -> ``(theta_t [rad], refused)``."""
@@ -744,7 +823,8 @@ class Swashplate:
         u = np.asarray(pitches_rad, dtype=float).reshape(-1)
         if u.shape != (N_PITCH,) or not np.all(np.isfinite(u)):
             raise ValueError(f"need {N_PITCH} finite pitches (theta_m, theta_t, eps, eta), got {u!r}")
-        blades, _ = self._clip_blades(np.array([u[THETA_M], u[EPS], u[ETA]]))
+        blades = np.array([u[THETA_M], u[EPS], u[ETA]])
+        clip_blades(blades, self._kernel_params)
         plate = self._plate_from_blades(float(blades[0]), float(blades[1]), float(blades[2]))
         swash = self._servo_pwm(self.servo_matrix @ plate)
         (lo, hi), (t_lo, t_hi) = self.tail.pwm_us, self.tail.theta_t_rad

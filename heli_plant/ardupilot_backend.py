@@ -42,10 +42,14 @@ from heli_common.swashplate import Swashplate
 from heli_plant.ardupilot_link import ArduPilotJsonLink
 from heli_plant.model import Plant
 from heli_plant.pacer import Pacer
-from heli_plant.sensors.model import earth_accel_from_states, specific_force_flu
+from heli_plant.sensors.model import specific_force_over_step
 
 RECORD_PERIOD_S = 0.01  # plant.csv: one row per 10 ms of physics time (the bench's 100 Hz)
 CHANNEL_RSC = 8
+N_SWASH_CHANNELS = 4  # SERVO1-3 the plate, SERVO4 the tail
+# frames whose readings are remembered: in flight the servos dither over a few microseconds,
+# so the same PWMs recur; emptied when full, which bounds the memory
+READING_CACHE_SIZE = 1024
 
 
 @dataclass
@@ -90,8 +94,8 @@ class ArduPilotBackend:
             self._writer.writerow(["t", *[n.split("_")[0] for n in STATE_NAMES], *PITCH_NAMES, "interlock",
                                    "rotor_rad_s"])  # fmt: skip
         self._next_record_s = 0.0
-        self._last_key: tuple[int, ...] = ()
-        self._last: tuple[FloatArray, int, int, bool, float] = (np.zeros(N_PITCH), 0, 0, False, 0.0)
+        # (pitches, refused, saturated, interlock, speed fraction) by a frame's channels 1-4 and 8
+        self._readings: dict[tuple[int, ...], tuple[FloatArray, int, int, bool, float]] = {}
 
     def _reset(self) -> None:
         self.plant = self._make_plant()
@@ -102,15 +106,18 @@ class ArduPilotBackend:
     def pitches_for(self, pwm_us: tuple[int, ...]) -> FloatArray:
         """The blade pitches a frame's PWMs set (zero while the rotor's interlock is off); the
         rotor plant's governor takes its set point from channel 8."""
-        key = (*pwm_us[:4], pwm_us[CHANNEL_RSC - 1])
-        if key != self._last_key:  # the firmware's outputs change at its 400 Hz loop, frames
-            # come at 1200 Hz: two frames in three repeat the last PWMs
-            reading = self.swash.pitches_from_pwm(np.asarray(pwm_us[:4], dtype=float))
+        key = (*pwm_us[:N_SWASH_CHANNELS], pwm_us[CHANNEL_RSC - 1])
+        known = self._readings.get(key)
+        if known is None:  # the firmware's outputs change at its 400 Hz loop, frames come at
+            # 1200 Hz: two frames in three repeat the last PWMs, and in flight they recur
+            reading = self.swash.pitches_from_pwm(np.asarray(pwm_us[:N_SWASH_CHANNELS], dtype=float))
             speed, interlock, rsc_refused = self.swash.rsc.speed_fraction(float(pwm_us[CHANNEL_RSC - 1]))
             pitches = reading.as_array() if interlock else np.zeros(N_PITCH)
-            self._last_key, self._last = key, (pitches, reading.refused + rsc_refused, reading.saturated,
-                                               interlock, speed)  # fmt: skip
-        pitches, refused, saturated, interlock, speed = self._last
+            if len(self._readings) >= READING_CACHE_SIZE:
+                self._readings.clear()
+            known = self._readings[key] = (pitches, reading.refused + rsc_refused, reading.saturated,
+                                           interlock, speed)  # fmt: skip
+        pitches, refused, saturated, interlock, speed = known
         self.plant.set_rotor_speed_command(speed * self.plant.rotor_design_speed_rad_s)
         self.stats.refused_pwm += refused
         if interlock:  # disarmed, the firmware parks the collective 1 us below the head's stop
@@ -126,8 +133,7 @@ class ArduPilotBackend:
         p.set_pitches(self.pitches_for(pwm_us))
         x0 = p.x.copy()
         x1 = p.step(dt_s)
-        accel = earth_accel_from_states(x0, x1, dt_s)
-        f = specific_force_flu(x1, np.array(accel), p.constants.gravity_m_s2)
+        f = specific_force_over_step(x0, x1, dt_s, p.constants.gravity_m_s2)
         self.stats.frames += 1
         # the firmware's clock is the sum of the frame periods; the plant keeps its own on the
         # sim link's microsecond grid (1/1200 s is not on it: 0.04 % slow, for the world's timing)

@@ -5,6 +5,8 @@ launchers that start plant, autopilot and ground script as processes."""
 
 from typing import Any
 
+import heli_common  # noqa: F401  (first: one BLAS thread, before numpy loads)
+
 # The Python API (heli_sitl/api.py), imported on first use: `heli-sitl --help` and the
 # launchers need none of its imports (pandas, the compiled loop).
 _API = ("PID", "TLC", "CampaignCounts", "CampaignResult", "ComparisonResult", "ExitStatus", "Flight",

@@ -28,6 +28,15 @@ def main() -> None:
 
     wrap_pi(4.0)
     apply_ground_contact(np.zeros(12), np.zeros(12))
+    # the ArduPilot JSON backend's per-frame path: servo PWM -> pitches, the answer
+    from heli_common.ardupilot_json import json_state_from_plant, state_json
+    from heli_common.swashplate import Swashplate
+    from heli_plant.sensors.model import specific_force_over_step
+
+    swash = Swashplate.load()
+    swash.pwm_from_pitches(swash.pitches_from_pwm(np.full(4, 1500.0)).as_array())
+    json_state_from_plant(0.0, x, specific_force_over_step(x, x, 0.01, 9.80665))
+    state_json(0.0, [0.0] * 3, [0.0] * 3, [0.0] * 3, [0.0] * 3, [1.0, 0.0, 0.0, 0.0])
     plant = Plant(sc.airframe, x)
     plant.set_pitches(np.zeros(4))
     plant.step(0.01)

@@ -9,6 +9,9 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 
+import heli_common  # noqa: F401  (first: one BLAS thread per test worker, before numpy loads)
+
+# isort: split
 import numpy as np
 import pytest
 from hypothesis import settings

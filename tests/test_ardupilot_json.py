@@ -30,6 +30,7 @@ from heli_common.ardupilot_json import (
     MAGIC_16,
     MAGIC_32,
     PACKET_BYTES,
+    QUAT_NORM_TOL,
     Refusal,
     RefusalReason,
     ServoFrame,
@@ -38,6 +39,7 @@ from heli_common.ardupilot_json import (
     parse_servo_packet,
     state_json,
 )
+from heli_common.frames import NF_POS, NF_QUAT, NF_RATES, NF_VEL, flu_to_frd, state_to_ned_fields
 from heli_common.kinematics import rot_body_to_earth
 from heli_common.state import N_STATE, PHI, PSI, THETA, U_F, V_L, W_U, X_N, Y_W, Z_U
 from heli_plant.ardupilot_link import ArduPilotJsonLink, port_for_instance
@@ -229,6 +231,103 @@ def test_state_json_refuses_what_the_firmware_cannot_take() -> None:
         json_state_from_plant(0.0, _level_state(), [0, math.inf, G])
     with pytest.raises(ValueError, match="shape"):
         json_state_from_plant(0.0, np.zeros(11), [0, 0, G])
+
+
+_F32 = struct.Struct("<f")
+
+
+def _reference_state_json(t: float, *fields: Any) -> bytes:
+    """The answer as state_json wrote it before its compiled rounding: plain floats, the
+    quaternion normalised, the float32 fields rounded by struct (round-to-nearest-even),
+    each number written as its repr. Raises OverflowError where a float32 cannot hold one."""
+    gyro, accel, pos, vel, quat = ([float(c) for c in f] for f in fields)
+    norm = math.sqrt(sum(c * c for c in quat))
+    quat = [c / norm for c in quat]
+
+    def f32(values: list[float]) -> list[float]:
+        return [_F32.unpack(_F32.pack(c))[0] for c in values]
+
+    gyro, accel, vel, quat = f32(gyro), f32(accel), f32(vel), f32(quat)
+    return (
+        f'\n{{"timestamp":{t!r},"imu":{{"gyro":[{",".join(map(repr, gyro))}],'
+        f'"accel_body":[{",".join(map(repr, accel))}]}},"position":[{",".join(map(repr, pos))}],'
+        f'"velocity":[{",".join(map(repr, vel))}],"quaternion":[{",".join(map(repr, quat))}]}}\n'
+    ).encode("ascii")
+
+
+def _random_vector(rng: np.random.Generator, n: int) -> np.ndarray:
+    """Components over many decades (past both ends of float32's range), some exact zeros of
+    either sign, some exactly halfway between two float32s (where round-to-nearest-even decides)."""
+    v = rng.normal(size=n) * 10.0 ** rng.integers(-48, 40, n)  # float32: 1e-45 .. 3.4e38
+    k = rng.integers(0, 8)
+    if k == 0:
+        v[rng.integers(0, n)] = rng.choice([0.0, -0.0])
+    elif k == 1:  # a float32 plus half its ulp: a tie
+        f = np.float32(rng.normal() * 100.0)
+        v[rng.integers(0, n)] = float(f) + 0.5 * float(np.spacing(f))
+    return v
+
+
+def test_state_json_is_byte_identical_to_the_struct_rounding() -> None:
+    rng = np.random.default_rng(23)
+    for _ in range(3000):
+        t = float(rng.uniform(0.0, 1e5))
+        q = rng.normal(size=4)
+        q *= (1.0 + rng.uniform(-0.9, 0.9) * QUAT_NORM_TOL) / np.linalg.norm(q)
+        fields = [_random_vector(rng, 3) for _ in range(4)] + [q]
+        try:
+            want = _reference_state_json(t, *fields)
+        except OverflowError:
+            with pytest.raises(ValueError, match="overflows a float32"):
+                state_json(t, *fields)
+            continue
+        assert state_json(t, *fields) == want
+        assert state_json(t, *(f.tolist() for f in fields)) == want  # lists as arrays
+    # the largest float32 is sent as itself; twice it is refused
+    big = float(np.finfo(np.float32).max)
+    edge = ([big, 0, 0], [0, 0, 0], [0, 0, 0], [0, 0, 0], [1, 0, 0, 0])
+    assert state_json(1.0, *edge) == _reference_state_json(1.0, *edge)
+    with pytest.raises(ValueError, match="overflows a float32"):
+        state_json(1.0, [0, 0, 0], [0, 0, 0], [0, 0, 0], [2.0 * big, 0, 0], [1, 0, 0, 0])
+
+
+def test_plant_answer_equals_state_json_of_the_same_values() -> None:
+    """json_state_from_plant's compiled path writes what state_json writes for the
+    converted state, byte for byte."""
+    rng = np.random.default_rng(29)
+    for n in range(3000):
+        x = _random_vector(rng, N_STATE)
+        x[PHI : PSI + 1] = rng.uniform(-7.0, 7.0, 3)  # any angle: yaw wraps
+        f_flu = _random_vector(rng, 3) if n % 2 else rng.normal(0.0, 20.0, 3)
+        t = float(rng.uniform(0.0, 1e5))
+        f = state_to_ned_fields(x)
+        args = (f[NF_RATES : NF_RATES + 3], flu_to_frd(f_flu), f[NF_POS : NF_POS + 3], f[NF_VEL : NF_VEL + 3],
+                f[NF_QUAT : NF_QUAT + 4])  # fmt: skip
+        try:
+            want = state_json(t, *args)
+        except ValueError as exc:  # the same refusal, with the same message
+            with pytest.raises(ValueError, match=re.escape(str(exc))):
+                json_state_from_plant(t, x, f_flu)
+            continue
+        assert json_state_from_plant(t, x, f_flu) == want
+        assert json_state_from_plant(t, x, tuple(f_flu)) == want
+
+
+def test_plant_answer_refusals_say_why() -> None:
+    x = _level_state()
+    x[U_F] = 1e39  # a finite double no float32 holds
+    with pytest.raises(ValueError, match="overflows a float32"):
+        json_state_from_plant(1.0, x, [0, 0, G])
+    with pytest.raises(ValueError, match="negative"):
+        json_state_from_plant(-1.0, _level_state(), [0, 0, G])
+    with pytest.raises(ValueError, match="plant state is not finite"):
+        json_state_from_plant(1.0, np.full(N_STATE, math.inf), [0, 0, G])
+    with pytest.raises(ValueError, match="specific force is not finite"):
+        json_state_from_plant(1.0, _level_state(), [math.nan, 0, G])
+    with pytest.raises(ValueError, match="3 components"):
+        json_state_from_plant(1.0, _level_state(), [0, 0, G, 0])
+    with pytest.raises(ValueError, match="not numbers"):
+        json_state_from_plant("soon", _level_state(), [0, 0, G])  # type: ignore[arg-type]
 
 
 def test_level_hover_gives_gravity_up_specific_force() -> None:

@@ -446,3 +446,51 @@ def test_read_parm(tmp_path: Path) -> None:
     p.write_text("H_COL_MIN abc\n")
     with pytest.raises(ConfigError, match="not a number"):
         read_parm(p)
+
+
+# --- the compiled PWM -> pitches kernel against the numpy formulation it replaced ------------------
+
+
+def _reference_swash_pitches(s: Swashplate, pwm: np.ndarray) -> tuple[np.ndarray, int, int]:
+    """SERVO1-3 PWM -> ((theta_m, eps, eta), refused, saturated), as Swashplate computed it in
+    numpy before swash_pitches_kernel: ball travel, plate, blades, clip."""
+    sv, h = s.servos, s.head
+    lo, hi, mid = np.array(sv.pwm_min_us), np.array(sv.pwm_max_us), np.array(sv.pwm_neutral_us)
+    finite = np.isfinite(pwm)
+    p = np.where(finite, pwm, mid)
+    bad = ~finite | (p < lo) | (p > hi)
+    u = (np.clip(p, lo, hi) - mid) / 500.0 * np.where(np.array(sv.reversed), -1.0, 1.0)
+    if sv.arm_max_deg > 0.0:
+        a = math.radians(sv.arm_max_deg)
+        u = np.sin(a * u) / math.sin(a)
+    height, tilt_p, tilt_r = np.linalg.inv(s.servo_matrix) @ (500.0 * u)
+    c, sn = math.cos(math.radians(h.phase_deg)), math.sin(math.radians(h.phase_deg))
+    disc_p, disc_r = tilt_p * c - tilt_r * sn, tilt_r * c + tilt_p * sn
+    k, kc = h.theta_m_per_us_rad, h.cyclic_ratio * h.theta_m_per_us_rad
+    sign = -1.0 if h.collective_reversed else 1.0
+    blades = np.array([h.theta_m_at_neutral_rad + sign * k * height, -kc * disc_p, kc * disc_r])
+    lim_lo = np.array([h.theta_m_rad[0], h.eps_rad[0], h.eta_rad[0]])
+    lim_hi = np.array([h.theta_m_rad[1], h.eps_rad[1], h.eta_rad[1]])
+    clipped = np.clip(blades, lim_lo, lim_hi)
+    return clipped, int(np.count_nonzero(bad)), int(np.count_nonzero(clipped != blades))
+
+
+@pytest.mark.parametrize("setup", [*SETUPS, "xcell_toml", "collective_reversed"])
+def test_compiled_swash_pitches_equal_the_numpy_reference(setup: str) -> None:
+    if setup == "xcell_toml":
+        s = Swashplate.load(XCELL_TOML)
+    elif setup == "collective_reversed":
+        s = Swashplate.from_ardupilot_params({**COPTER_HELI, "H_SW_COL_DIR": 1, "SERVO2_TRIM": 1450},
+                                             tail_theta_t_rad=TAIL, cyclic_ratio=1.3)  # fmt: skip
+    else:
+        s = plate(SETUPS[setup])
+    rng = np.random.default_rng(11)
+    specials = (math.nan, math.inf, -math.inf, 0.0, 65535.0, 999.0, 2001.0)
+    for n in range(3000):
+        pwm = rng.uniform(900.0, 2100.0, 3)
+        if n % 5 == 0:
+            pwm[rng.integers(0, 3)] = specials[n % len(specials)]
+        want, refused, saturated = _reference_swash_pitches(s, pwm)
+        got, got_refused, got_saturated = s.swash_pitches(pwm)
+        assert (got_refused, got_saturated) == (refused, saturated), pwm
+        np.testing.assert_allclose(got, want, rtol=0.0, atol=1e-12)

@@ -374,6 +374,17 @@ def earth_accel_from_states(x0: FloatArray, x1: FloatArray, dt_s: float) -> tupl
     return ((b0 - a0) / dt_s, (b1 - a1) / dt_s, (b2 - a2) / dt_s)
 
 
+@njit
+def specific_force_over_step(
+    x0: FloatArray, x1: FloatArray, dt_s: float, gravity_m_s2: float
+) -> tuple[float, float, float]:
+    """What a perfect accelerometer reads at the end of a step from ``x0`` to ``x1``, body
+    FLU [m/s^2]: :func:`specific_force_flu` of :func:`earth_accel_from_states`, in one
+    compiled call (the ArduPilot backend answers 1200 frames a second)."""
+    a0, a1, a2 = earth_accel_from_states(x0, x1, dt_s)
+    return specific_force_flu(x1, np.array((a0, a1, a2)), gravity_m_s2)
+
+
 # ---------------------------------------------------------------- compiled pieces
 
 

@@ -28,6 +28,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from heli_common.threads import SINGLE_THREAD_ENV
 from heli_sitl.campaigns import report
 from heli_sitl.campaigns.flight import fly, warm
 from heli_sitl.campaigns.settings import Flight
@@ -35,15 +36,6 @@ from heli_sitl.campaigns.spec import CampaignSpec
 
 PARTS = "parts"
 RESULTS = "results.parquet"
-# numpy, scipy and numba must not start a thread pool per worker on top of the processes
-SINGLE_THREAD_ENV = {
-    "OMP_NUM_THREADS": "1",
-    "OPENBLAS_NUM_THREADS": "1",
-    "MKL_NUM_THREADS": "1",
-    "NUMBA_NUM_THREADS": "1",
-}
-
-
 def software_version() -> str:
     from importlib.metadata import PackageNotFoundError, version
 
