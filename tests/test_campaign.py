@@ -23,6 +23,7 @@ from scipy import stats
 
 from heli_common.config import ConfigError
 from heli_common.mavlink.udp import free_udp_port
+from heli_common.threads import SINGLE_THREAD_ENV
 from heli_sitl.campaigns import engine, report
 from heli_sitl.campaigns.run import prepare, run_campaign
 from heli_sitl.campaigns.sampling import flight_count, sample_table
@@ -336,7 +337,7 @@ def test_a_real_scheduler_with_two_workers_and_one_killed_mid_way(tmp_path: Path
     addr = f"tcp://127.0.0.1:{port}"
     worker_cmd = [sys.executable, "-m", "distributed.cli.dask_worker", addr, "--nthreads", "1",
                   "--nworkers", "1", "--no-nanny", "--host", "127.0.0.1", "--dashboard-address", ":0"]
-    env = {**os.environ, **engine.SINGLE_THREAD_ENV}
+    env = {**os.environ, **SINGLE_THREAD_ENV}
     workers = [
         subprocess.Popen(
             worker_cmd,

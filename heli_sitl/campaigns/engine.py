@@ -28,7 +28,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from heli_common.threads import SINGLE_THREAD_ENV
+from heli_common.threads import SINGLE_THREAD_ENV, one_blas_thread
 from heli_sitl.campaigns import report
 from heli_sitl.campaigns.flight import fly, warm
 from heli_sitl.campaigns.settings import Flight
@@ -67,15 +67,10 @@ def schema(spec: CampaignSpec) -> pa.Schema:
     return pa.schema(fields)
 
 
-def _single_threaded() -> None:
-    for k, v in SINGLE_THREAD_ENV.items():
-        os.environ.setdefault(k, v)
-
-
 def warm_worker(base: Flight) -> None:
     """Run on every worker as the cluster starts: imports and compiled code loaded before
     the first batch (counted in the cluster's start, not in the flights' pace)."""
-    _single_threaded()
+    one_blas_thread()
     with contextlib.suppress(Exception):  # a flight that cannot fly says so in its own row
         warm(base)
 
@@ -84,7 +79,7 @@ def run_batch(
     spec: CampaignSpec, base: Flight, ids: list[int], rows: list[list[float]]
 ) -> list[dict[str, Any]]:
     """A task: fly these samples one after the other (in a worker process)."""
-    _single_threaded()
+    one_blas_thread()
     version = software_version()
     out = []
     for sid, values in zip(ids, rows, strict=True):
