@@ -18,6 +18,7 @@ from __future__ import annotations
 import contextlib
 import math
 import os
+import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -89,6 +90,14 @@ def run_batch(
     return out
 
 
+def preload_writer(spec: CampaignSpec) -> None:
+    """What the first part's write imports (pyarrow builds a table from rows through its
+    pandas shim, which imports pandas: ~1 s of CPU), loaded before the flights start. Run
+    in a thread while the cluster starts, when this process only waits: done later, it took
+    a core from the two workers in the middle of the flights (measured, py-spy)."""
+    pa.Table.from_pylist([], schema=schema(spec))
+
+
 def done_ids(out: Path) -> set[int]:
     """Sample ids already written (complete parts only)."""
     parts = out / PARTS
@@ -144,6 +153,18 @@ class EngineStats:
     scheduler: str = "embedded LocalCluster"
 
 
+#: the embedded cluster's housekeeping slowed down: its workers use every core, so what
+#: the scheduler, the nannies and the workers' own threads do between flights is taken
+#: from the flights. The workers' statistical profiler walked the flying thread's stack
+#: every 10 ms; the event loops measured their tick every 20 ms; the system monitors read
+#: psutil twice a second (seen in py-spy profiles of a 2-worker campaign).
+QUIET_CLUSTER: dict[str, object] = {
+    "distributed.worker.profile.enabled": False,
+    "distributed.admin.tick.interval": "1s",
+    "distributed.admin.system-monitor.interval": "5s",
+}
+
+
 @contextlib.contextmanager
 def cluster(workers: int, scheduler: str | None) -> Iterator[Any]:
     """A Dask client: to ``scheduler``, or to an embedded LocalCluster of ``workers``
@@ -154,16 +175,22 @@ def cluster(workers: int, scheduler: str | None) -> Iterator[Any]:
         with Client(scheduler, timeout="30s") as client:
             yield client
         return
+    import dask
+
     saved = {k: os.environ.get(k) for k in SINGLE_THREAD_ENV}
     os.environ.update(SINGLE_THREAD_ENV)
     try:
         with (
+            dask.config.set(QUIET_CLUSTER),
             LocalCluster(
                 n_workers=workers,
                 threads_per_worker=1,
                 processes=True,
                 dashboard_address=None,
                 host="127.0.0.1",
+                # no memory limit, so no nanny polling each worker's memory 10 times a
+                # second (psutil, CPU taken from the flights): a flight holds a few MB
+                memory_limit=0,
                 silence_logs=40,
             ) as lc,
             Client(lc) as client,
@@ -202,8 +229,11 @@ def run(
     if not todo:
         return stats
     t0 = time.perf_counter()
+    preload = threading.Thread(target=preload_writer, args=(spec,), name="preload-writer", daemon=True)
+    preload.start()
     with cluster(workers, scheduler) as client:
         client.run(warm_worker, base)
+        preload.join()
         t_ready = time.perf_counter()
         stats.cluster_start_s = t_ready - t0
         stats.workers = len(client.scheduler_info().get("workers", {})) or workers
