@@ -6,6 +6,7 @@ the figures drawn on the cluster byte for byte as here, a figure that fails cost
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import signal
@@ -293,6 +294,21 @@ def test_same_file_same_rows_on_one_and_two_workers(tmp_path: Path) -> None:
     # the same command again: everything is there, nothing flies
     again = run_campaign(f, tmp_path / "b", workers=2, quiet=True)
     assert again["run"]["flown_now"] == 0 and rows(tmp_path / "b") == b
+
+
+def test_tasks_are_guided_big_first_single_flights_last() -> None:
+    spec, _, _ = prepare("robustness", 10)
+    for n, workers in ((1000, 2), (200, 2), (200, 1), (7, 4), (1, 2)):
+        todo = list(range(3, 3 + n))
+        tasks = engine.batches(spec, todo, workers)
+        assert [i for t in tasks for i in t] == todo  # each sample once, in order
+        sizes = [len(t) for t in tasks]
+        assert sizes == sorted(sizes, reverse=True) and max(sizes) <= engine.MAX_BATCH
+        assert sizes[-1] == 1  # the tail: single flights
+    assert [len(t) for t in engine.batches(spec, list(range(1000)), 2)][:13] == [50] * 13
+    # a fixed batch in the file wins
+    fixed = dataclasses.replace(spec, batch=7)
+    assert [len(t) for t in engine.batches(fixed, list(range(20)), 2)] == [7, 7, 6]
 
 
 def _spawn(args: list[str], log: Path) -> subprocess.Popen[bytes]:
