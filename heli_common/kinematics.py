@@ -17,20 +17,44 @@ def rot_body_to_earth(phi: float, theta: float, psi: float) -> FloatArray:
     return rot_at(cph, sph, cth, sth, math.cos(psi), math.sin(psi))
 
 
+# the nine entries of Rt, row by row
+RotEntries = tuple[float, float, float, float, float, float, float, float, float]
+
+
+@njit
+def rot_entries(cph: float, sph: float, cth: float, sth: float, cps: float, sps: float) -> RotEntries:
+    """:func:`rot_at`'s entries as scalars, row by row: the one place their expressions are
+    written, so the matrix and the array-free products below give the same bits."""
+    return (
+        cth * cps, sph * sth * cps - cph * sps, cph * sth * cps + sph * sps,
+        cth * sps, sph * sth * sps + cph * cps, cph * sth * sps - sph * cps,
+        -sth, sph * cth, cph * cth,
+    )  # fmt: skip
+
+
 @njit
 def rot_at(cph: float, sph: float, cth: float, sth: float, cps: float, sps: float) -> FloatArray:
     """:func:`rot_body_to_earth` from the Euler angles' cosines and sines."""
     r = np.empty((3, 3))
-    r[0, 0] = cth * cps
-    r[0, 1] = sph * sth * cps - cph * sps
-    r[0, 2] = cph * sth * cps + sph * sps
-    r[1, 0] = cth * sps
-    r[1, 1] = sph * sth * sps + cph * cps
-    r[1, 2] = cph * sth * sps - sph * cps
-    r[2, 0] = -sth
-    r[2, 1] = sph * cth
-    r[2, 2] = cph * cth
+    r[0, 0], r[0, 1], r[0, 2], r[1, 0], r[1, 1], r[1, 2], r[2, 0], r[2, 1], r[2, 2] = rot_entries(
+        cph, sph, cth, sth, cps, sps
+    )
     return r
+
+
+@njit
+def earth_to_body_at(
+    cph: float, sph: float, cth: float, sth: float, cps: float, sps: float, vx: float, vy: float, vz: float
+) -> tuple[float, float, float]:
+    """``Rt^T v`` (earth NWU -> body FLU) from the Euler angles' cosines and sines, without the
+    matrix: the same sums as ``rot_at(...)[:, i] . v`` (so the same bits), for code that runs
+    once per derivative evaluation and should not allocate."""
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = rot_entries(cph, sph, cth, sth, cps, sps)
+    return (
+        r00 * vx + r10 * vy + r20 * vz,
+        r01 * vx + r11 * vy + r21 * vz,
+        r02 * vx + r12 * vy + r22 * vz,
+    )
 
 
 @njit

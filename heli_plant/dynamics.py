@@ -63,12 +63,18 @@ def gravity_flu(x: FloatArray, c: PlantConstants) -> FloatArray:
 
 @njit
 def gravity_at(c: PlantConstants, cph: float, sph: float, cth: float, sth: float) -> FloatArray:
-    mg = c.mass_kg * c.gravity_m_s2
     f = np.empty(3)
+    gravity_into(f, c, cph, sph, cth, sth)
+    return f
+
+
+@njit
+def gravity_into(f: FloatArray, c: PlantConstants, cph: float, sph: float, cth: float, sth: float) -> None:
+    """:func:`gravity_at` written into ``f``: the integrator's stages reuse one buffer."""
+    mg = c.mass_kg * c.gravity_m_s2
     f[0] = mg * sth
     f[1] = -mg * cth * sph
     f[2] = -mg * cth * cph
-    return f
 
 
 @njit
@@ -86,17 +92,25 @@ def forces_from_loads_at(
 ) -> tuple[FloatArray, FloatArray]:
     """:func:`forces_from_loads` with the weight ``f`` [N, FLU] given (and added to in place):
     a caller that has the attitude's sines and cosines already passes :func:`gravity_at`."""
+    q = np.empty(3)
+    forces_from_loads_into(u, c, tm, qm, tt, qt, f, q)
+    return f, q
+
+
+@njit
+def forces_from_loads_into(
+    u: FloatArray, c: PlantConstants, tm: float, qm: float, tt: float, qt: float, f: FloatArray, q: FloatArray
+) -> None:
+    """:func:`forces_from_loads_at` with the torque written into ``q`` (no array made)."""
     eps, eta = u[EPS], u[ETA]
     seps, ceps, seta, ceta = math.sin(eps), math.cos(eps), math.sin(eta), math.cos(eta)
     d = math.sqrt(1.0 - seps * seps * seta * seta)
     f[0] = f[0] + tm * seps * ceta / d
     f[1] = f[1] - tm * ceps * seta / d - tt
     f[2] = f[2] + tm * ceps * ceta / d
-    q = np.empty(3)
     q[0] = tm * c.hm * seta + tt * c.ht + qm * seps
     q[1] = tm * c.lm + tm * c.hm * seps + qt - qm * seta
     q[2] = -tm * c.lm * seta + tt * c.lt - qm * ceps * ceta
-    return f, q
 
 
 @njit
@@ -115,11 +129,23 @@ def rigid_body_at(
 ) -> FloatArray:  # fmt: skip
     """:func:`rigid_body` with the attitude's cosines and sines given (a derivative needs
     them for the weight and the air too: taken once, the same bits)."""
+    dx = np.empty(N_STATE)
+    rigid_body_into(dx, x, f, q, c, cph, sph, cth, sth, cps, sps)
+    return dx
+
+
+@njit
+def rigid_body_into(
+    dx: FloatArray, x: FloatArray, f: FloatArray, q: FloatArray, c: PlantConstants, cph: float, sph: float,
+    cth: float, sth: float, cps: float, sps: float,
+) -> None:  # fmt: skip
+    """:func:`rigid_body_at` written into ``dx[:N_STATE]`` (``dx`` may be longer: the
+    integrator's buffers hold the rotor plant's states after the rigid body's); ``dx`` must
+    not be ``x`` (the attitude is read after the first derivatives are written)."""
     u, v, w = x[U_F], x[V_L], x[W_U]
     p, qr, r = x[P_X], x[Q_Y], x[R_Z]
     # Rt and E^-1 written out: the same expressions as rot_body_to_earth and euler_rates (so
     # the same bits), without their two arrays; a derivative is evaluated four times a step.
-    dx = np.empty(N_STATE)
     dx[X_N] = (cth * cps) * u + (sph * sth * cps - cph * sps) * v + (cph * sth * cps + sph * sps) * w
     dx[X_N + 1] = (cth * sps) * u + (sph * sth * sps + cph * cps) * v + (cph * sth * sps - sph * cps) * w
     dx[X_N + 2] = (-sth) * u + (sph * cth) * v + (cph * cth) * w
@@ -141,7 +167,6 @@ def rigid_body_at(
     dx[P_X] = c.inv_ixx * mx + c.inv_ixz * mz
     dx[Q_Y] = c.inv_iyy * my
     dx[R_Z] = c.inv_ixz * mx + c.inv_izz * mz
-    return dx
 
 
 @njit

@@ -57,8 +57,8 @@ from heli_common.airframe import Airframe, PlantConstants
 from heli_common.jit import njit
 from heli_common.layout import Layout
 from heli_common.plant_model import RotorPlant
-from heli_common.state import EPS, ETA, P_X, Q_Y, R_Z, THETA_M, THETA_T, Z_U, FloatArray
-from heli_plant.dynamics import gravity_flu
+from heli_common.state import EPS, ETA, P_X, PHI, Q_Y, R_Z, THETA, THETA_M, THETA_T, Z_U, FloatArray
+from heli_plant.dynamics import gravity_into
 from heli_plant.world import air
 
 ROTOR_STATE = Layout("rotor state", ("a1_rad", 1), ("b1_rad", 1), ("omega_rad_s", 1), ("governor_int_rad", 1))
@@ -178,6 +178,22 @@ def rotor_loads(
     augmented state ``y`` (rigid body, then the rotor state at ``n_state``), blade pitches
     ``u``, c.g. air-relative velocity ``(u_a, v_a, w_a)`` [m/s FLU] and the governor's set
     point ``omega_c`` [rad/s] (``<= 0``: the engine off)."""
+    f, mom, dr = np.empty(3), np.empty(3), np.empty(N_ROTOR)
+    cph, sph, cth, sth = math.cos(y[PHI]), math.sin(y[PHI]), math.cos(y[THETA]), math.sin(y[THETA])
+    lam_m, lam_t, throttle = rotor_loads_into(y, u, c, g, u_a, v_a, w_a, lam_m_guess, lam_t_guess, n_state,
+                                              omega_c, cph, sph, cth, sth, f, mom, dr)  # fmt: skip
+    return f, mom, dr, lam_m, lam_t, throttle
+
+
+@njit
+def rotor_loads_into(
+    y: FloatArray, u: FloatArray, c: PlantConstants, g: RotorConstants, u_a: float, v_a: float, w_a: float,
+    lam_m_guess: float, lam_t_guess: float, n_state: int, omega_c: float, cph: float, sph: float,
+    cth: float, sth: float, f: FloatArray, mom: FloatArray, dr: FloatArray,
+) -> tuple[float, float, float]:  # fmt: skip
+    """:func:`rotor_loads` written into ``f``, ``mom``, ``dr`` (the integrator's buffers, no
+    array made), with the roll and pitch angles' cosines and sines given (the caller's, for
+    the rigid body too); returns (lam_m, lam_t, throttle)."""
     p, q, r = y[P_X], y[Q_Y], y[R_Z]
     a1, b1 = y[n_state + A1], y[n_state + B1]
     om = max(y[n_state + OMEGA_R], OMEGA_MIN_RAD_S)
@@ -213,7 +229,7 @@ def rotor_loads(
     w_ht = wh + (vi_m if in_main_wake(u_a, w_a, vi_m, g.ht_l, g.r_m, c.hm) else 0.0)
     fz_ht = -0.5 * g.rho * g.ht_area * (g.ht_slope * abs(uh) * w_ht + abs(w_ht) * w_ht)
     fux, fuy, fuz = air.fuselage_force_flu(u_a, v_a, w_a, vi_m, g.s_x, g.s_y, g.s_z, g.rho)
-    f = gravity_flu(y, c)
+    gravity_into(f, c, cph, sph, cth, sth)
     f[0] += fx + fux
     f[1] += fy + fy_tr + fy_vf + fuy
     f[2] += fz + fz_ht + fuz
@@ -223,13 +239,11 @@ def rotor_loads(
     raw = g.kp * e + g.ki * y[n_state + GOV_INT] if engine_on else 0.0
     throttle = min(max(raw, 0.0), 1.0)
     q_e = g.p_max * throttle / max(om, g.omega_clutch)
-    mom = np.empty(3)
     # hub spring + thrust at the hub (r x F), tail rotor and fin at the tail, stabilizer
     mom[0] = g.k_beta * b1 - c.hm * fy - c.ht * fy_tr - g.fin_h * fy_vf
     mom[1] = g.k_beta * a1 + c.hm * fx - c.lm * fz + qt + g.ht_l * fz_ht
     mom[2] = c.lm * fy - g.rot * q_e - c.lt * fy_tr - g.fin_l * fy_vf
     # flapping, rotor speed (relative to the fuselage: the caller adds -s r'), governor
-    dr = np.empty(N_ROTOR)
     inv_tau = g.lock * om / 16.0
     dmu = 2.0 * g.k_mu * (4.0 * u[THETA_M] / 3.0 - lam_m)
     dr[A1] = -q - a1 * inv_tau + inv_tau * (g.a_lon * u[EPS] - dmu * um / tip_m)
@@ -239,4 +253,4 @@ def rotor_loads(
         dr[OMEGA_R] = 0.0  # stopped: the drag that is left cannot turn it backwards
     winding = (raw >= 1.0 and e > 0.0) or (raw <= 0.0 and e < 0.0)
     dr[GOV_INT] = 0.0 if winding or not engine_on else e
-    return f, mom, dr, lam_m, lam_t, throttle
+    return lam_m, lam_t, throttle

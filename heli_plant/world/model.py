@@ -30,14 +30,14 @@ from heli_common import servo_model as servos
 from heli_common.airframe import Airframe, PlantConstants
 from heli_common.gusts import gust_factor, mean_wind_nwu
 from heli_common.jit import njit
-from heli_common.kinematics import rot_at, rot_body_to_earth
+from heli_common.kinematics import earth_to_body_at, rot_body_to_earth
 from heli_common.layout import Layout
 from heli_common.plant_model import RotorPlant
 from heli_common.state import N_PITCH, N_STATE, P_X, PHI, PSI, Q_Y, R_Z, THETA, U_F, V_L, W_U, FloatArray
 from heli_common.world import World
 from heli_plant import rotor
 from heli_plant.contact import apply_ground_contact
-from heli_plant.dynamics import forces_from_loads_at, gravity_at, rigid_body_at, rotor_loads
+from heli_plant.dynamics import forces_from_loads_into, gravity_into, rigid_body_into, rotor_loads
 from heli_plant.rotor import N_ROTOR, RotorConstants
 from heli_plant.world import air, wind
 
@@ -176,21 +176,24 @@ def derivative_in_air(
     body's in ``x``. Then the injected disturbance. The ideal world (nothing of the air on)
     computes no air-relative velocity: it is the paper's plant, at the paper plant's cost.
     The inflow solves start from ``ws``' last inflow ratios."""
-    dx, _, _ = _derivative_from(t, x, u, c, a, w_nwu, wp, ws, g, ws[WS_LAM_MAIN], ws[WS_LAM_TAIL])
+    dx = np.empty(N_STATE + N_ROTOR if g.on else N_STATE)
+    _derivative_into(dx, t, x, u, c, a, w_nwu, wp, ws, g, ws[WS_LAM_MAIN], ws[WS_LAM_TAIL], np.empty(3),
+                     np.empty(3))  # fmt: skip
     return dx
 
 
 @njit
-def _derivative_from(
-    t: float, x: FloatArray, u: FloatArray, c: PlantConstants, a: AirConstants,
+def _derivative_into(
+    dx: FloatArray, t: float, x: FloatArray, u: FloatArray, c: PlantConstants, a: AirConstants,
     w_nwu: FloatArray, wp: FloatArray, ws: FloatArray, g: RotorConstants, lam_m0: float,
-    lam_t0: float,
-) -> tuple[FloatArray, float, float]:  # fmt: skip
-    """:func:`derivative_in_air` with the paper plant's inflow solves started from
-    ``(lam_m0, lam_t0)``, and the inflow ratios it found (the guesses back where none is
-    solved): the integrator hands each RK4 stage the previous stage's inflow, so a solve
-    starts half a step away instead of a whole one (and no extra solve per step is needed)."""
-    dr = np.empty(0)
+    lam_t0: float, f: FloatArray, q: FloatArray,
+) -> tuple[float, float]:  # fmt: skip
+    """:func:`derivative_in_air` written into ``dx`` (not ``x``), with the paper plant's
+    inflow solves started from ``(lam_m0, lam_t0)``; returns the inflow ratios it found (the
+    guesses back where none is solved): the integrator hands each RK4 stage the previous
+    stage's inflow, so a solve starts half a step away instead of a whole one (and no extra
+    solve per step is needed). ``f``, ``q`` (3 each) are scratch for the force and torque:
+    the integrator's four stages reuse its buffers instead of making arrays."""
     # the attitude's cosines and sines, once for the weight, the air and the rigid body
     cph, sph = math.cos(x[PHI]), math.sin(x[PHI])
     cth, sth = math.cos(x[THETA]), math.sin(x[THETA])
@@ -198,14 +201,16 @@ def _derivative_from(
     trig = (cph, sph, cth, sth, cps, sps)
     if not (g.on or a.inflow or a.fuselage):
         tm, qm, tt, qt = rotor_loads(u[0], u[1], c)
-        f, q = forces_from_loads_at(u, c, tm, qm, tt, qt, gravity_at(c, cph, sph, cth, sth))
-        return _with_disturbance(t, x, f, q, c, wp, dr, 0.0, trig), lam_m0, lam_t0
-    rt = rot_at(cph, sph, cth, sth, cps, sps)
-    u_a, v_a, w_a = air_relative_flu(x, rt, w_nwu)
-    if g.on:
-        f, q, dr, _, _, _ = rotor.rotor_loads(x, u, c, g, u_a, v_a, w_a, ws[WS_LAM_MAIN], ws[WS_LAM_TAIL],
-                                              N_STATE, ws[WS_GOVERNOR_SET])  # fmt: skip
-        return _with_disturbance(t, x, f, q, c, wp, dr, g.rot, trig), lam_m0, lam_t0
+        gravity_into(f, c, cph, sph, cth, sth)
+        forces_from_loads_into(u, c, tm, qm, tt, qt, f, q)
+        _with_disturbance_into(dx, t, x, f, q, c, wp, False, 0.0, trig)
+        return lam_m0, lam_t0
+    u_a, v_a, w_a = _air_relative_at(x, trig, w_nwu)
+    if g.on:  # the rotor states' derivatives go straight after the rigid body's
+        rotor.rotor_loads_into(x, u, c, g, u_a, v_a, w_a, ws[WS_LAM_MAIN], ws[WS_LAM_TAIL], N_STATE,
+                               ws[WS_GOVERNOR_SET], cph, sph, cth, sth, f, q, dx[N_STATE:])  # fmt: skip
+        _with_disturbance_into(dx, t, x, f, q, c, wp, True, g.rot, trig)
+        return lam_m0, lam_t0
     lam_m, lam_t = lam_m0, lam_t0
     if a.inflow:
         tm, qm, tt, qt, lam_m, lam_t = air.rotor_loads_in_air(
@@ -216,22 +221,36 @@ def _derivative_from(
     else:
         tm, qm, tt, qt = rotor_loads(u[0], u[1], c)
         v_i = 0.0
-    f, q = forces_from_loads_at(u, c, tm, qm, tt, qt, gravity_at(c, cph, sph, cth, sth))
+    gravity_into(f, c, cph, sph, cth, sth)
+    forces_from_loads_into(u, c, tm, qm, tt, qt, f, q)
     if a.fuselage:
         fx, fy, fz = air.fuselage_force_flu(u_a, v_a, w_a, v_i, a.s_x, a.s_y, a.s_z, a.rho)
         f[0] += fx
         f[1] += fy
         f[2] += fz
-    return _with_disturbance(t, x, f, q, c, wp, dr, 0.0, trig), lam_m, lam_t
+    _with_disturbance_into(dx, t, x, f, q, c, wp, False, 0.0, trig)
+    return lam_m, lam_t
 
 
 @njit
-def _with_disturbance(
-    t: float, x: FloatArray, f: FloatArray, q: FloatArray, c: PlantConstants, wp: FloatArray,
-    dr: FloatArray, rot: float, trig: tuple[float, float, float, float, float, float],
-) -> FloatArray:  # fmt: skip
-    """The injected disturbance added to ``f``, ``q``; the rigid body's derivative, then the
-    rotor states' ``dr`` (the rotor speed relative to a fuselage yawing at ``r'``: ``- rot r'``)."""
+def _air_relative_at(
+    x: FloatArray, trig: tuple[float, float, float, float, float, float], w_nwu: FloatArray
+) -> tuple[float, float, float]:
+    """:func:`air_relative_flu` from the attitude's cosines and sines (no rotation matrix made)."""
+    cph, sph, cth, sth, cps, sps = trig
+    wx, wy, wz = earth_to_body_at(cph, sph, cth, sth, cps, sps, w_nwu[0], w_nwu[1], w_nwu[2])
+    return x[U_F] - wx, x[V_L] - wy, x[W_U] - wz
+
+
+@njit
+def _with_disturbance_into(
+    dx: FloatArray, t: float, x: FloatArray, f: FloatArray, q: FloatArray, c: PlantConstants,
+    wp: FloatArray, rotor_on: bool, rot: float, trig: tuple[float, float, float, float, float, float],
+) -> None:  # fmt: skip
+    """The injected disturbance added to ``f``, ``q``; the rigid body's derivative into
+    ``dx[:N_STATE]``. With the rotor plant (``rotor_on``) its states' derivatives are in
+    ``dx[N_STATE:]`` already: the rotor speed's is made relative to a fuselage yawing at
+    ``r'`` (``- rot r'``)."""
     s = disturbance_scale(t, wp)
     if s != 0.0:
         df, dq = wp[WP_DIST_FORCE : WP_DIST_FORCE + 3], wp[WP_DIST_TORQUE : WP_DIST_TORQUE + 3]
@@ -240,18 +259,42 @@ def _with_disturbance(
                 f[i] += s * df[i]
                 q[i] += s * dq[i]
         else:  # earth -> body: R^T
-            rt = rot_at(*trig)
+            cph, sph, cth, sth, cps, sps = trig
+            bf = earth_to_body_at(cph, sph, cth, sth, cps, sps, df[0], df[1], df[2])
+            bq = earth_to_body_at(cph, sph, cth, sth, cps, sps, dq[0], dq[1], dq[2])
             for i in range(3):
-                f[i] += s * (rt[0, i] * df[0] + rt[1, i] * df[1] + rt[2, i] * df[2])
-                q[i] += s * (rt[0, i] * dq[0] + rt[1, i] * dq[1] + rt[2, i] * dq[2])
-    dx = rigid_body_at(x, f, q, c, *trig)
-    if dr.shape[0] == 0:
-        return dx
-    out = np.empty(N_STATE + dr.shape[0])
-    out[:N_STATE] = dx
-    out[N_STATE:] = dr
-    out[N_STATE + rotor.OMEGA_R] -= rot * dx[R_Z]
-    return out
+                f[i] += s * bf[i]
+                q[i] += s * bq[i]
+    rigid_body_into(dx, x, f, q, c, *trig)
+    if rotor_on:
+        dx[N_STATE + rotor.OMEGA_R] -= rot * dx[R_Z]
+
+
+# the integrator's work rows (each the augmented state's length): one stage's state, then
+# the four slopes; made once per call, so an RK4 step makes no array
+RK_WORK = Layout("RK4 work rows", ("stage", 1), ("k1", 1), ("k2", 1), ("k3", 1), ("k4", 1))
+RK_STAGE = RK_WORK.offset("stage")
+RK_K1 = RK_WORK.offset("k1")
+RK_K2 = RK_WORK.offset("k2")
+RK_K3 = RK_WORK.offset("k3")
+RK_K4 = RK_WORK.offset("k4")
+N_RK_WORK = RK_WORK.size
+
+# the step's small buffers, one array made once per call
+STEP_SCRATCH = Layout(
+    "plant-step scratch",
+    ("pitch_rad", N_PITCH),  # the servos' output: the pitches the rotors see
+    ("air_nwu_m_s", 3),  # the sub-step's air velocity
+    ("force_n", 3),  # a derivative's body force and torque
+    ("torque_n_m", 3),
+    ("rotor_rate", N_ROTOR),  # the rotor plant's derivative, unused, when only its inflow is wanted
+)
+SC_PITCH = STEP_SCRATCH.offset("pitch_rad")
+SC_AIR = STEP_SCRATCH.offset("air_nwu_m_s")
+SC_FORCE = STEP_SCRATCH.offset("force_n")
+SC_TORQUE = STEP_SCRATCH.offset("torque_n_m")
+SC_ROTOR_RATE = STEP_SCRATCH.offset("rotor_rate")
+N_STEP_SCRATCH = STEP_SCRATCH.size
 
 
 @njit
@@ -264,33 +307,54 @@ def world_plant_step(
     in ``n_sub`` sub-steps, servos, air and disturbance advanced per sub-step (the air and
     pitches held within one), then ground contact. With the rotor plant (``g.on``) its
     states (``ws[WS_ROTOR:]``) are integrated with the rigid body's; with every effect off
-    this is the paper's plant alone."""
+    this is the paper's plant alone.
+
+    The stages and the update are written element by element into buffers made once per
+    call, each sum in the order numpy's ``y + 0.5 * h * k1`` and
+    ``y + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)`` evaluate it (the same bits)."""
     h = dt / n_sub
+    n = N_STATE + N_ROTOR if g.on else N_STATE
+    y = np.empty(n)
+    y[:N_STATE] = x
     if g.on:
-        y = np.empty(N_STATE + N_ROTOR)
-        y[:N_STATE] = x
         y[N_STATE:] = ws[WS_ROTOR : WS_ROTOR + N_ROTOR]
-    else:
-        y = x.copy()
-    u = u_cmd.copy()
-    w_nwu = np.zeros(3)
+    work = np.empty((N_RK_WORK, n))
+    ys, k1, k2, k3, k4 = work[RK_STAGE], work[RK_K1], work[RK_K2], work[RK_K3], work[RK_K4]
+    sc = np.empty(N_STEP_SCRATCH)
+    u = sc[SC_PITCH : SC_PITCH + N_PITCH]
+    u[:] = u_cmd
+    w_nwu = sc[SC_AIR : SC_AIR + 3]
+    w_nwu[:] = 0.0
+    f, q = sc[SC_FORCE : SC_FORCE + 3], sc[SC_TORQUE : SC_TORQUE + 3]
+    half, sixth = 0.5 * h, h / 6.0
     for k in range(n_sub):
         tk = t + k * h
         if wp[WP_SERVOS_ON] != 0.0:
             servos.servo_step(servo_p, servo_s, u_cmd, u)
         w_nwu[0], w_nwu[1], w_nwu[2] = air_velocity_nwu(tk, wp, ws, dryden)
         lm, lt = ws[WS_LAM_MAIN], ws[WS_LAM_TAIL]
-        k1, lm, lt = _derivative_from(tk, y, u, c, a, w_nwu, wp, ws, g, lm, lt)
-        k2, lm, lt = _derivative_from(tk + 0.5 * h, y + 0.5 * h * k1, u, c, a, w_nwu, wp, ws, g, lm, lt)
-        k3, lm, lt = _derivative_from(tk + 0.5 * h, y + 0.5 * h * k2, u, c, a, w_nwu, wp, ws, g, lm, lt)
-        k4, lm, lt = _derivative_from(tk + h, y + h * k3, u, c, a, w_nwu, wp, ws, g, lm, lt)
-        y = y + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+        lm, lt = _derivative_into(k1, tk, y, u, c, a, w_nwu, wp, ws, g, lm, lt, f, q)
+        for j in range(n):
+            ys[j] = y[j] + half * k1[j]
+        lm, lt = _derivative_into(k2, tk + 0.5 * h, ys, u, c, a, w_nwu, wp, ws, g, lm, lt, f, q)
+        for j in range(n):
+            ys[j] = y[j] + half * k2[j]
+        lm, lt = _derivative_into(k3, tk + 0.5 * h, ys, u, c, a, w_nwu, wp, ws, g, lm, lt, f, q)
+        for j in range(n):
+            ys[j] = y[j] + h * k3[j]
+        lm, lt = _derivative_into(k4, tk + h, ys, u, c, a, w_nwu, wp, ws, g, lm, lt, f, q)
+        for j in range(n):
+            y[j] = y[j] + sixth * (((k1[j] + 2.0 * k2[j]) + 2.0 * k3[j]) + k4[j])
         if g.on:  # the next solves start from this step's inflow; the throttle, for the record
-            rt = rot_body_to_earth(y[PHI], y[THETA], y[PSI])
-            u_a, v_a, w_a = air_relative_flu(y, rt, w_nwu)
+            cph, sph = math.cos(y[PHI]), math.sin(y[PHI])
+            cth, sth = math.cos(y[THETA]), math.sin(y[THETA])
+            trig = (cph, sph, cth, sth, math.cos(y[PSI]), math.sin(y[PSI]))
+            u_a, v_a, w_a = _air_relative_at(y, trig, w_nwu)
             lam_m0, lam_t0 = ws[WS_LAM_MAIN], ws[WS_LAM_TAIL]
-            _, _, _, lam_m, lam_t, thr = rotor.rotor_loads(y, u, c, g, u_a, v_a, w_a, lam_m0, lam_t0, N_STATE,
-                                                           ws[WS_GOVERNOR_SET])  # fmt: skip
+            lam_m, lam_t, thr = rotor.rotor_loads_into(
+                y, u, c, g, u_a, v_a, w_a, lam_m0, lam_t0, N_STATE, ws[WS_GOVERNOR_SET], cph, sph, cth, sth,
+                f, q, sc[SC_ROTOR_RATE : SC_ROTOR_RATE + N_ROTOR],
+            )  # fmt: skip
             ws[WS_LAM_MAIN], ws[WS_LAM_TAIL], ws[WS_THROTTLE] = lam_m, lam_t, thr
         elif a.inflow:  # the next solves start from the last stage's inflow (near the new state)
             ws[WS_LAM_MAIN], ws[WS_LAM_TAIL] = lm, lt
