@@ -227,7 +227,11 @@ def simulate(
         # the servos start where the first command puts them, as in the plant process; that
         # command answers the state the controller sees first (the estimate, from sensors)
         flying: TLController | PIDController | UserController = user or (pid if use_pid else ctrl)
-        first = copy.deepcopy(flying).update(0.0, sn.first_estimate(plant) if sn.on else x, refs[0])
+        x_first = sn.first_estimate(plant) if sn.on else x
+        if isinstance(flying, UserController):
+            first = copy.deepcopy(flying).update(0.0, x_first, refs[0])
+        else:
+            first = flying.trial_update(0.0, x_first, refs[0])
         u0 = plant.u.copy()
         accept_pitches(first, plant.lo, plant.hi, u0)
         plant.world.prepare(1.0 / rate_hz / plant.substeps, u0, np.column_stack([plant.lo, plant.hi]))

@@ -458,3 +458,21 @@ def test_yaw_error_is_wrapped(gains: Gains, psi: float, psi_c: float) -> None:
     xb = x.copy()
     xb[8] = psi + 2 * math.pi
     assert_allclose(a.update(0.01, x, _ref((0, 0, 20))), b.update(0.01, xb, _ref((0, 0, 20))), atol=1e-9)
+
+
+def test_a_trial_update_gives_the_next_command_and_changes_nothing(gains: Gains) -> None:
+    """What the in-process loop asks for its first command (the servos start there): the
+    command the next update gives, bit for bit, with the controller's state untouched."""
+    ctrl = TLController(_AF, gains, 100.0)
+    plant = Plant(_AF, _hover_state())
+    ref = _ref((1.0, -1.0, 21.0))
+    for i in range(30):
+        plant.set_pitches(ctrl.update(i * 0.01, plant.x, ref))
+        plant.step(0.01)
+    state, diag = ctrl.state.copy(), ctrl.diag.copy()
+    trial = ctrl.trial_update(0.3, plant.x, ref)
+    assert np.array_equal(ctrl.state, state) and np.array_equal(ctrl.diag, diag)
+    assert np.array_equal(trial, ctrl.update(0.3, plant.x, ref))
+    assert not np.array_equal(ctrl.state, state)  # the real update moved it
+    with pytest.raises(ValueError, match="state must be"):
+        ctrl.trial_update(0.0, np.zeros(3), ref)
