@@ -34,11 +34,11 @@ from autopilot.control import (
 from autopilot.reference import ACC_0 as REF_ACC
 from autopilot.reference import POS_0 as REF_POS
 from autopilot.reference import VEL_0 as REF_VEL
-from autopilot.tlc.allocation import allocate, collective_tail_tilt
-from autopilot.tlc.differentiator import DiffCoeffs, diff_reset, diff_step, discretize
+from autopilot.tlc.allocation import allocate3, collective_tail_tilt
+from autopilot.tlc.differentiator import DiffCoeffs, diff_channel, diff_reset3, discretize
 from autopilot.tlc.gains import Gains
-from autopilot.tlc.inversion import force_to_thrust_attitude, limit_tilt, yaw_rate_command
-from autopilot.tlc.loops import a3_matrix, a4_times
+from autopilot.tlc.inversion import force_to_thrust_attitude3, limit_tilt2, yaw_rate_command
+from autopilot.tlc.loops import a3_times, a4_times3, cross3, euler_rate_times, mat_vec3, rot3
 from autopilot.tlc.rotor_aware import (
     SERVO_STATE_SIZE,
     RotorAwareConstants,
@@ -49,9 +49,25 @@ from autopilot.tlc.rotor_aware import (
 )
 from heli_common.airframe import Airframe, PlantConstants
 from heli_common.jit import njit
-from heli_common.kinematics import cross, euler_rate_matrix, mat_t_vec, mat_vec, rot_body_to_earth, wrap_pi
+from heli_common.kinematics import wrap_pi
 from heli_common.layout import Layout
-from heli_common.state import EULER, N_PITCH, OMEGA, POS, VEL, FloatArray
+from heli_common.state import (
+    N_PITCH,
+    OMEGA,
+    P_X,
+    PHI,
+    PSI,
+    Q_Y,
+    R_Z,
+    THETA,
+    U_F,
+    V_L,
+    W_U,
+    X_N,
+    Y_W,
+    Z_U,
+    FloatArray,
+)
 
 # reference vector (earth NWU): commanded position and, where known, its derivatives
 
@@ -167,89 +183,122 @@ def tlc_kernel(
 
     ``st`` is updated only when the tick produced a finite command; otherwise ``out`` holds
     the last valid command (zero pitch before the first) and ``st`` is untouched.
+
+    The law's vectors are values, not arrays (``*3`` helpers: the same arithmetic,
+    operation for operation, as the array forms the tests check): a tick makes two arrays,
+    the working copy of the state and the pitches, instead of some sixty temporaries at
+    ~15 ns each.
     """
     c = k.plant
     mg = c.mass_kg * c.gravity_m_s2
-    if not (all_finite(x) and all_finite(ref[REF_POS : REF_POS + 3])):
+    if not (all_finite(x) and _finite3(ref, REF_POS)):
         return refuse(st, S_LAST_U, out, diag, BAD_INPUT)
     s = st.copy()
     dt = k.dt_s
-    pos, vel, gam, om = x[POS], x[VEL], x[EULER], x[OMEGA]
-    pc = ref[REF_POS : REF_POS + 3]
+    w2, zw2, d = k.w2, k.zw2, k.diff
+    pos = (x[X_N], x[Y_W], x[Z_U])
+    vel = (x[U_F], x[V_L], x[W_U])
+    gam = (x[PHI], x[THETA], x[PSI])
+    om = (x[P_X], x[Q_Y], x[R_Z])
+    pc = (ref[REF_POS], ref[REF_POS + 1], ref[REF_POS + 2])
     first = s[S_STARTED] == 0.0
     if first:
-        s[0:12] = 0.0
-        diff_reset(s, S_D_POS, pc)
+        for i in range(12):
+            s[i] = 0.0
+        diff_reset3(s, S_D_POS, pc[0], pc[1], pc[2])
         vx0, vy0 = ref[REF_VEL], ref[REF_VEL + 1]
         if math.isfinite(vx0) and math.isfinite(vy0) and math.hypot(vx0, vy0) > k.yaw_hold_speed_m_s:
             s[S_PSI_C] = math.atan2(vy0, vx0)  # initial path tangent
         else:
             s[S_PSI_C] = gam[2]
 
-    # the differentiators' outputs: rows of one array (one allocation, not six, a tick)
-    rates = np.empty((6, 3))
-    dpc, d2pc, da, unused, dgc, dwc = rates[0], rates[1], rates[2], rates[3], rates[4], rates[5]
-
     # --- loop 1: position kinematics -> earth-frame velocity command a = Rt Vc
-    diff_step(s, S_D_POS, pc, k.diff, dpc, d2pc)
+    dpc0, d2pc0 = diff_channel(s, S_D_POS, 0, pc[0], d)
+    dpc1, d2pc1 = diff_channel(s, S_D_POS, 1, pc[1], d)
+    dpc2, _ = diff_channel(s, S_D_POS, 2, pc[2], d)  # the yaw needs no vertical d2
     if k.exact_ff:
-        dpc[:] = ref[REF_VEL : REF_VEL + 3]
-        d2pc[:] = ref[REF_ACC : REF_ACC + 3]
-    pe = pc - pos
+        dpc0, dpc1, dpc2 = ref[REF_VEL], ref[REF_VEL + 1], ref[REF_VEL + 2]
+        d2pc0, d2pc1 = ref[REF_ACC], ref[REF_ACC + 1]
+    pe = (pc[0] - pos[0], pc[1] - pos[1], pc[2] - pos[2])
+    i1 = (s[S_I1], s[S_I1 + 1], s[S_I1 + 2])
     speed_limited = False
     if k.max_speed_m_s > 0.0:  # the correction's horizontal speed held (the trajectory's is not)
-        fb = k.w2[0] * s[S_I1 : S_I1 + 3] + k.zw2[0] * pe
-        h = math.hypot(fb[0], fb[1])
+        fb0 = w2[0, 0] * i1[0] + zw2[0, 0] * pe[0]
+        fb1 = w2[0, 1] * i1[1] + zw2[0, 1] * pe[1]
+        fb2 = w2[0, 2] * i1[2] + zw2[0, 2] * pe[2]
+        h = math.hypot(fb0, fb1)
         if h > k.max_speed_m_s:
-            fb[0] *= k.max_speed_m_s / h
-            fb[1] *= k.max_speed_m_s / h
+            fb0 *= k.max_speed_m_s / h
+            fb1 *= k.max_speed_m_s / h
             speed_limited = True
-        a = dpc + fb
+        a = (dpc0 + fb0, dpc1 + fb1, dpc2 + fb2)
     else:
-        a = dpc + k.w2[0] * s[S_I1 : S_I1 + 3] + k.zw2[0] * pe
-    rt = rot_body_to_earth(gam[0], gam[1], gam[2])
-    vc = mat_t_vec(rt, a)
+        a = (dpc0 + w2[0, 0] * i1[0] + zw2[0, 0] * pe[0], dpc1 + w2[0, 1] * i1[1] + zw2[0, 1] * pe[1],
+             dpc2 + w2[0, 2] * i1[2] + zw2[0, 2] * pe[2])  # fmt: skip
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = rot3(gam[0], gam[1], gam[2])
+    # Vc = Rt^T a
+    vc = (r00 * a[0] + r10 * a[1] + r20 * a[2], r01 * a[0] + r11 * a[1] + r21 * a[2],
+          r02 * a[0] + r12 * a[1] + r22 * a[2])  # fmt: skip
 
     # --- loop 2: position dynamics (dVc/dt differentiated in the earth frame)
-    ve = vc - vel
+    ve = (vc[0] - vel[0], vc[1] - vel[1], vc[2] - vel[2])
     if first:
-        diff_reset(s, S_D_A, a)
-    diff_step(s, S_D_A, a, k.diff, da, unused)
-    fc = c.mass_kg * mat_t_vec(rt, da) + c.mass_kg * (
-        k.w2[1] * s[S_I2 : S_I2 + 3] + k.zw2[1] * ve - cross(om, ve)
-    )
-    tilt_limited = limit_tilt(fc, mg, k.tilt_max_rad)
-    tm, phi_c, theta_c = force_to_thrust_attitude(fc, mg)
+        diff_reset3(s, S_D_A, a[0], a[1], a[2])
+    da0, _ = diff_channel(s, S_D_A, 0, a[0], d)
+    da1, _ = diff_channel(s, S_D_A, 1, a[1], d)
+    da2, _ = diff_channel(s, S_D_A, 2, a[2], d)
+    m = c.mass_kg
+    oxv = cross3(om, ve)
+    fx = m * (r00 * da0 + r10 * da1 + r20 * da2) + m * (w2[1, 0] * s[S_I2] + zw2[1, 0] * ve[0] - oxv[0])
+    fy = m * (r01 * da0 + r11 * da1 + r21 * da2) + m * (w2[1, 1] * s[S_I2 + 1] + zw2[1, 1] * ve[1] - oxv[1])
+    fz = m * (r02 * da0 + r12 * da1 + r22 * da2) + m * (w2[1, 2] * s[S_I2 + 2] + zw2[1, 2] * ve[2] - oxv[2])
+    fx, fy, tilt_limited = limit_tilt2(fx, fy, mg, k.tilt_max_rad)
+    tm, phi_c, theta_c = force_to_thrust_attitude3(fx, fy, fz, mg)
 
     # --- yaw augmentation: nose along the path tangent
-    dpsi_c = yaw_rate_command(dpc[0], dpc[1], d2pc[0], d2pc[1], k.yaw_hold_speed_m_s)
-    gc = np.empty(3)
-    gc[0], gc[1], gc[2] = phi_c, theta_c, s[S_PSI_C]
+    dpsi_c = yaw_rate_command(dpc0, dpc1, d2pc0, d2pc1, k.yaw_hold_speed_m_s)
+    gc = (phi_c, theta_c, s[S_PSI_C])
 
     # --- loop 3: attitude kinematics -> body-rate command
-    ge = gc - gam
-    ge[2] = wrap_pi(ge[2])
+    ge = (gc[0] - gam[0], gc[1] - gam[1], wrap_pi(gc[2] - gam[2]))
     if first:
-        diff_reset(s, S_D_GAMMA, gc)
-    diff_step(s, S_D_GAMMA, gc, k.diff, dgc, unused)
-    ec = euler_rate_matrix(gc[0], gc[1])
-    a3 = a3_matrix(gc[0], gc[1], om[0], om[1], om[2])
-    wc = mat_vec(ec, dgc + k.w2[2] * s[S_I3 : S_I3 + 3] + k.zw2[2] * ge + mat_vec(a3, ge))
+        diff_reset3(s, S_D_GAMMA, gc[0], gc[1], gc[2])
+    dgc0, _ = diff_channel(s, S_D_GAMMA, 0, gc[0], d)
+    dgc1, _ = diff_channel(s, S_D_GAMMA, 1, gc[1], d)
+    dgc2, _ = diff_channel(s, S_D_GAMMA, 2, gc[2], d)
+    cph, sph = math.cos(gc[0]), math.sin(gc[0])
+    cth, sth, tth = math.cos(gc[1]), math.sin(gc[1]), math.tan(gc[1])
+    a3ge = a3_times(cph, sph, cth, tth, om[1], om[2], ge)
+    wc = euler_rate_times(cph, sph, cth, sth, (
+        dgc0 + w2[2, 0] * s[S_I3] + zw2[2, 0] * ge[0] + a3ge[0],
+        dgc1 + w2[2, 1] * s[S_I3 + 1] + zw2[2, 1] * ge[1] + a3ge[1],
+        dgc2 + w2[2, 2] * s[S_I3 + 2] + zw2[2, 2] * ge[2] + a3ge[2],
+    ))  # fmt: skip
 
     # --- loop 4: attitude dynamics -> torque command
-    we = wc - om
+    we = (wc[0] - om[0], wc[1] - om[1], wc[2] - om[2])
     if first:
-        diff_reset(s, S_D_OMEGA, wc)
-    diff_step(s, S_D_OMEGA, wc, k.diff, dwc, unused)
-    qc = mat_vec(k.j, dwc) + cross(wc, mat_vec(k.j, wc)) + mat_vec(
-        k.j, k.w2[3] * s[S_I4 : S_I4 + 3] + k.zw2[3] * we + a4_times(wc, k.j, k.j_inv, we)
-    )
+        diff_reset3(s, S_D_OMEGA, wc[0], wc[1], wc[2])
+    dwc0, _ = diff_channel(s, S_D_OMEGA, 0, wc[0], d)
+    dwc1, _ = diff_channel(s, S_D_OMEGA, 1, wc[1], d)
+    dwc2, _ = diff_channel(s, S_D_OMEGA, 2, wc[2], d)
+    j = k.j
+    jd = mat_vec3(j, (dwc0, dwc1, dwc2))
+    gyro = cross3(wc, mat_vec3(j, wc))
+    a4we = a4_times3(wc, j, k.j_inv, we)
+    reg = mat_vec3(j, (
+        w2[3, 0] * s[S_I4] + zw2[3, 0] * we[0] + a4we[0],
+        w2[3, 1] * s[S_I4 + 1] + zw2[3, 1] * we[1] + a4we[1],
+        w2[3, 2] * s[S_I4 + 2] + zw2[3, 2] * we[2] + a4we[2],
+    ))  # fmt: skip
+    qc = (jd[0] + gyro[0] + reg[0], jd[1] + gyro[1] + reg[1], jd[2] + gyro[2] + reg[2])
 
     # --- allocation with saturation (the rotor-aware TLC: to the disc's tilt, then loop 5)
     if k.rotor.on:
-        u, tm, sat_mask = flapping_loop(k, s, om, wc, qc, tm, first)
+        u, tm, sat_mask = flapping_loop(k, s, x[OMEGA], np.array(wc), np.array(qc), tm, first)
     else:
-        u, tm, sat_mask = allocate(qc, tm, c, k.limits)
+        u = np.empty(N_PITCH)
+        tm, sat_mask = allocate3(qc[0], qc[1], qc[2], tm, c, k.limits, u)
     if not all_finite(u) or not all_finite(s):
         return refuse(st, S_LAST_U, out, diag, BAD_OUTPUT)
 
@@ -258,14 +307,22 @@ def tlc_kernel(
     if not hold_integrators:
         if not (saturated or tilt_limited):
             if not speed_limited:
-                s[S_I1 : S_I1 + 3] += dt * pe
-            s[S_I2 : S_I2 + 3] += dt * ve
+                for i in range(3):
+                    s[S_I1 + i] += dt * pe[i]
+            for i in range(3):
+                s[S_I2 + i] += dt * ve[i]
         if not saturated:
-            s[S_I3 : S_I3 + 3] += dt * ge
-            s[S_I4 : S_I4 + 3] += dt * we
+            for i in range(3):
+                s[S_I3 + i] += dt * ge[i]
+                s[S_I4 + i] += dt * we[i]
     s[S_PSI_C] += dt * dpsi_c
     s[S_STARTED] = 1.0
     return commit(st, s, S_LAST_U, u, out, diag, gc[0], gc[1], gc[2], tm, sat_mask, tilt_limited)
+
+
+@njit
+def _finite3(v: FloatArray, at: int) -> bool:
+    return math.isfinite(v[at]) and math.isfinite(v[at + 1]) and math.isfinite(v[at + 2])
 
 
 class TLController(KernelController[Gains]):

@@ -54,19 +54,32 @@ def diff_reset(st: FloatArray, off: int, u: FloatArray) -> None:
 
 
 @njit
+def diff_reset3(st: FloatArray, off: int, u0: float, u1: float, u2: float) -> None:
+    """:func:`diff_reset` with the input as values (no array made for it)."""
+    st[off], st[off + 1], st[off + 2] = u0, u1, u2
+    st[off + 3] = st[off + 4] = st[off + 5] = 0.0
+
+
+@njit
+def diff_channel(st: FloatArray, off: int, i: int, u: float, c: DiffCoeffs) -> tuple[float, float]:
+    """Channel ``i`` of :func:`diff_step`, the same arithmetic: ``(du/dt, d2u/dt2)``, as
+    values (the kernels hold them in registers, not in arrays made each tick)."""
+    x1, x2 = st[off + i], st[off + 3 + i]
+    n1 = c.a11 * x1 + c.a12 * x2 + c.b1 * u
+    n2 = c.a21 * x1 + c.a22 * x2 + c.b2 * u
+    st[off + i] = n1
+    st[off + 3 + i] = n2
+    # The mean of dx2/dt over the coming hold interval: unbiased on a ramp, unlike
+    # -wd^2 (x1 - u[k]) - 2 zd wd x2, which pairs x2(t_k) with the sample that just
+    # stepped and made the pseudo-mode yaw rate 3.6 % fast on the paper circle.
+    return x2, (n2 - x2) / c.dt_s
+
+
+@njit
 def diff_step(st: FloatArray, off: int, u: FloatArray, c: DiffCoeffs, d1: FloatArray, d2: FloatArray) -> None:
     """Write du/dt (x2) to d1 and d2u/dt2 (dx2/dt) to d2 at this tick, then advance the
     3 channels one tick with ``u`` held. Reading the outputs before the update makes the
     filter strictly causal, as a continuous filter sampled at t_k (it reproduces the
     spec's rate-sensitivity figures: 0.0402 m RMS at 100 Hz)."""
     for i in range(3):
-        x1, x2 = st[off + i], st[off + 3 + i]
-        n1 = c.a11 * x1 + c.a12 * x2 + c.b1 * u[i]
-        n2 = c.a21 * x1 + c.a22 * x2 + c.b2 * u[i]
-        st[off + i] = n1
-        st[off + 3 + i] = n2
-        d1[i] = x2
-        # The mean of dx2/dt over the coming hold interval: unbiased on a ramp, unlike
-        # -wd^2 (x1 - u[k]) - 2 zd wd x2, which pairs x2(t_k) with the sample that just
-        # stepped and made the pseudo-mode yaw rate 3.6 % fast on the paper circle.
-        d2[i] = (n2 - x2) / c.dt_s
+        d1[i], d2[i] = diff_channel(st, off, i, u[i], c)

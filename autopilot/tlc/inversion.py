@@ -11,14 +11,19 @@ from heli_common.state import FloatArray
 @njit
 def limit_tilt(f: FloatArray, mg: float, tilt_max_rad: float) -> bool:
     """Scale (Fx, Fy) in place so |(Fx, Fy)| <= m g sin(tilt_max); True if it had to."""
-    h = math.hypot(f[0], f[1])
+    f[0], f[1], limited = limit_tilt2(f[0], f[1], mg, tilt_max_rad)
+    return limited
+
+
+@njit
+def limit_tilt2(fx: float, fy: float, mg: float, tilt_max_rad: float) -> tuple[float, float, bool]:
+    """:func:`limit_tilt` on values: (Fx, Fy, whether it had to scale them)."""
+    h = math.hypot(fx, fy)
     h_max = mg * math.sin(tilt_max_rad)
     if h > h_max:
         k = h_max / h
-        f[0] *= k
-        f[1] *= k
-        return True
-    return False
+        return fx * k, fy * k, True
+    return fx, fy, False
 
 
 @njit
@@ -27,10 +32,16 @@ def force_to_thrust_attitude(f: FloatArray, mg: float) -> tuple[float, float, fl
 
     Requires |(Fx, Fy)| < m g (guaranteed by :func:`limit_tilt`).
     """
-    vert = math.sqrt(mg * mg - f[0] * f[0] - f[1] * f[1])  # = mg c(th) c(ph) = Tm - Fz
-    tm = f[2] + vert
-    phi_c = math.atan2(-f[1], vert)
-    theta_c = math.atan2(f[0], math.sqrt(mg * mg - f[0] * f[0]))
+    return force_to_thrust_attitude3(f[0], f[1], f[2], mg)
+
+
+@njit
+def force_to_thrust_attitude3(fx: float, fy: float, fz: float, mg: float) -> tuple[float, float, float]:
+    """:func:`force_to_thrust_attitude` of the force as values."""
+    vert = math.sqrt(mg * mg - fx * fx - fy * fy)  # = mg c(th) c(ph) = Tm - Fz
+    tm = fz + vert
+    phi_c = math.atan2(-fy, vert)
+    theta_c = math.atan2(fx, math.sqrt(mg * mg - fx * fx))
     return tm, phi_c, theta_c
 
 

@@ -111,7 +111,6 @@ import numpy as np
 from heli_common.defaults import HOME
 from heli_common.geo import GeoPoint
 from heli_common.jit import njit
-from heli_common.kinematics import cross, rot_body_to_earth
 from heli_common.layout import Layout
 from heli_common.magnetic import earth_field_nwu_gauss
 from heli_common.measurements import (  # the out layout and mask bits are the contract's
@@ -145,7 +144,7 @@ from heli_common.measurements import (  # the out layout and mask bits are the c
     MagSample,
 )
 from heli_common.sensors import SENSOR_TABLES, Sensors, validate
-from heli_common.state import N_STATE, OMEGA, P_X, PHI, PSI, THETA, U_F, V_L, VEL, W_U, X_N, Z_U, FloatArray
+from heli_common.state import N_STATE, P_X, PHI, PSI, THETA, U_F, V_L, W_U, X_N, Z_U, FloatArray
 from heli_plant.world.noise import STREAM_SENSOR_BASE, normal, normal_pair
 
 # --- stream ids (one per random process; the world owns those below 16) -----------------
@@ -309,15 +308,29 @@ GPS_ACCURACY_FLOOR_M = 0.01
 # ---------------------------------------------------------------- truth helpers
 
 
+Rot = tuple[float, float, float, float, float, float, float, float, float]
+
+
+@njit
+def _rot(x: FloatArray) -> Rot:
+    """:func:`~heli_common.kinematics.rot_body_to_earth` of the state's Euler angles as
+    values, row-major, the same arithmetic: no array made (several a step)."""
+    cph, sph, cth, sth = math.cos(x[PHI]), math.sin(x[PHI]), math.cos(x[THETA]), math.sin(x[THETA])
+    cps, sps = math.cos(x[PSI]), math.sin(x[PSI])
+    return (cth * cps, sph * sth * cps - cph * sps, cph * sth * cps + sph * sps,
+            cth * sps, sph * sth * sps + cph * cps, cph * sth * sps - sph * cps,
+            -sth, sph * cth, cph * cth)  # fmt: skip
+
+
 @njit
 def velocity_nwu(x: FloatArray) -> tuple[float, float, float]:
     """The c.g. velocity in earth NWU, ``R v_body`` [m/s]."""
-    rt = rot_body_to_earth(x[PHI], x[THETA], x[PSI])
+    rt = _rot(x)
     u, v, w = x[U_F], x[V_L], x[W_U]
     return (
-        rt[0, 0] * u + rt[0, 1] * v + rt[0, 2] * w,
-        rt[1, 0] * u + rt[1, 1] * v + rt[1, 2] * w,
-        rt[2, 0] * u + rt[2, 1] * v + rt[2, 2] * w,
+        rt[0] * u + rt[1] * v + rt[2] * w,
+        rt[3] * u + rt[4] * v + rt[5] * w,
+        rt[6] * u + rt[7] * v + rt[8] * w,
     )
 
 
@@ -327,25 +340,26 @@ def specific_force_flu(
 ) -> tuple[float, float, float]:
     """What a perfect accelerometer reads, body FLU: ``R^T (a_earth - g_earth)``,
     ``g_earth = (0, 0, -g)``; ``(0, 0, +g)`` at rest and level."""
-    rt = rot_body_to_earth(x[PHI], x[THETA], x[PSI])
+    rt = _rot(x)
     ax, ay, az = accel_earth_nwu[0], accel_earth_nwu[1], accel_earth_nwu[2] + gravity_m_s2
     return (
-        rt[0, 0] * ax + rt[1, 0] * ay + rt[2, 0] * az,
-        rt[0, 1] * ax + rt[1, 1] * ay + rt[2, 1] * az,
-        rt[0, 2] * ax + rt[1, 2] * ay + rt[2, 2] * az,
+        rt[0] * ax + rt[3] * ay + rt[6] * az,
+        rt[1] * ax + rt[4] * ay + rt[7] * az,
+        rt[2] * ax + rt[5] * ay + rt[8] * az,
     )
 
 
 @njit
-def magnetic_field_flu(x: FloatArray, field_nwu_gauss: FloatArray) -> tuple[float, float, float]:
+def magnetic_field_flu(x: FloatArray, field_nwu_gauss: FloatArray, at: int = 0) -> tuple[float, float, float]:
     """What a perfect magnetometer reads, body FLU: ``R^T m_nwu`` [gauss], ``m_nwu`` the
-    earth's field (:func:`heli_common.magnetic.earth_field_nwu_gauss` at home)."""
-    rt = rot_body_to_earth(x[PHI], x[THETA], x[PSI])
-    m0, m1, m2 = field_nwu_gauss[0], field_nwu_gauss[1], field_nwu_gauss[2]
+    earth's field (:func:`heli_common.magnetic.earth_field_nwu_gauss` at home) at
+    ``field_nwu_gauss[at:]``."""
+    rt = _rot(x)
+    m0, m1, m2 = field_nwu_gauss[at], field_nwu_gauss[at + 1], field_nwu_gauss[at + 2]
     return (
-        rt[0, 0] * m0 + rt[1, 0] * m1 + rt[2, 0] * m2,
-        rt[0, 1] * m0 + rt[1, 1] * m1 + rt[2, 1] * m2,
-        rt[0, 2] * m0 + rt[1, 2] * m1 + rt[2, 2] * m2,
+        rt[0] * m0 + rt[3] * m1 + rt[6] * m2,
+        rt[1] * m0 + rt[4] * m1 + rt[7] * m2,
+        rt[2] * m0 + rt[5] * m1 + rt[8] * m2,
     )
 
 
@@ -353,15 +367,16 @@ def magnetic_field_flu(x: FloatArray, field_nwu_gauss: FloatArray) -> tuple[floa
 def earth_accel_from_derivative(x: FloatArray, xdot: FloatArray) -> tuple[float, float, float]:
     """``a_earth = d/dt (R v) = R (dv/dt + omega x v)`` from the state and its derivative
     (the plant's ``rigid_body``/``derivative`` output) at the same time [m/s^2, NWU]."""
-    rt = rot_body_to_earth(x[PHI], x[THETA], x[PSI])
-    wxv = cross(x[OMEGA], x[VEL])
-    b0 = xdot[U_F] + wxv[0]
-    b1 = xdot[V_L] + wxv[1]
-    b2 = xdot[W_U] + wxv[2]
+    rt = _rot(x)
+    # omega x v (heli_common.kinematics.cross) on values
+    p, q, r, u, v, w = x[P_X], x[P_X + 1], x[P_X + 2], x[U_F], x[V_L], x[W_U]
+    b0 = xdot[U_F] + (q * w - r * v)
+    b1 = xdot[V_L] + (r * u - p * w)
+    b2 = xdot[W_U] + (p * v - q * u)
     return (
-        rt[0, 0] * b0 + rt[0, 1] * b1 + rt[0, 2] * b2,
-        rt[1, 0] * b0 + rt[1, 1] * b1 + rt[1, 2] * b2,
-        rt[2, 0] * b0 + rt[2, 1] * b1 + rt[2, 2] * b2,
+        rt[0] * b0 + rt[1] * b1 + rt[2] * b2,
+        rt[3] * b0 + rt[4] * b1 + rt[5] * b2,
+        rt[6] * b0 + rt[7] * b1 + rt[8] * b2,
     )
 
 
@@ -455,8 +470,8 @@ def _pop_ready(
 
 @njit
 def _imu_sample(
-    t: float, x: FloatArray, a_e: FloatArray, rt: FloatArray, seed: int, p: FloatArray, s: FloatArray,
-    out: FloatArray,
+    t: float, x: FloatArray, a_e: tuple[float, float, float], rt: Rot, seed: int, p: FloatArray,
+    s: FloatArray, out: FloatArray,
 ) -> None:  # fmt: skip
     n = int(s[SNS_IMU_N])
     dt = _since(t, s[SNS_IMU_LAST_T])
@@ -486,7 +501,7 @@ def _imu_sample(
     ax, ay, az = a_e[0], a_e[1], a_e[2] + p[SNP_GRAVITY]
     for i in range(3):
         g = x[P_X + i] + p[SNP_GYRO_BIAS + i] + s[SNS_GYRO_WALK + i]
-        f = rt[0, i] * ax + rt[1, i] * ay + rt[2, i] * az + p[SNP_ACCEL_BIAS + i] + s[SNS_ACCEL_WALK + i]
+        f = rt[i] * ax + rt[3 + i] * ay + rt[6 + i] * az + p[SNP_ACCEL_BIAS + i] + s[SNS_ACCEL_WALK + i]
         if sg > 0.0:
             g += sg * wg[i]
         if sa > 0.0:
@@ -647,7 +662,7 @@ def _mag_sample(t: float, x: FloatArray, seed: int, p: FloatArray, s: FloatArray
     if fault and p[SNP_MAG_FREEZE] != 0.0 and s[SNS_MAG_OUT] > 0.0:
         s[SNS_MAG_OUT] += 1.0
         return  # the values stay
-    b = magnetic_field_flu(x, p[SNP_MAG_FIELD : SNP_MAG_FIELD + 3])
+    b = magnetic_field_flu(x, p, SNP_MAG_FIELD)
     for i in range(3):
         v = b[i] + p[SNP_MAG_HARD_IRON + i]
         if sigma > 0.0:
@@ -668,12 +683,21 @@ def sensor_step(
     samples into ``out`` (layout in the module docstring) and returns the mask of the new
     ones (``NEW_IMU | NEW_GPS | NEW_ATT | NEW_BARO | NEW_MAG``). Call it once per step,
     with non-decreasing ``t_s``."""
+    a = (accel_earth_nwu[0], accel_earth_nwu[1], accel_earth_nwu[2])
+    return sensor_step3(t_s, x, a, params, state, out)
+
+
+@njit
+def sensor_step3(
+    t_s: float, x: FloatArray, accel_earth_nwu: tuple[float, float, float], params: FloatArray,
+    state: FloatArray, out: FloatArray,
+) -> int:  # fmt: skip
+    """:func:`sensor_step` with the acceleration as values (no array made for it)."""
     seed = int(params[SNP_SEED])
     tol = params[SNP_TOL_S]
     new = 0
     if _due(t_s, params[SNP_IMU_RATE_HZ], tol, state, SNS_IMU_NEXT):
-        rt = rot_body_to_earth(x[PHI], x[THETA], x[PSI])
-        _imu_sample(t_s, x, accel_earth_nwu, rt, seed, params, state, out)
+        _imu_sample(t_s, x, accel_earth_nwu, _rot(x), seed, params, state, out)
         new |= NEW_IMU
     if _due(t_s, params[SNP_GPS_RATE_HZ], tol, state, SNS_GPS_NEXT):
         _gps_sample(t_s, x, seed, params, state)

@@ -54,7 +54,7 @@ from heli_plant import rotor
 from heli_plant.contact import GROUND_Z_M
 from heli_plant.dynamics import derivative
 from heli_plant.rotor import RotorConstants
-from heli_plant.sensors.model import SensorModel, earth_accel_from_derivative, sensor_step
+from heli_plant.sensors.model import SensorModel, earth_accel_from_derivative, sensor_step3
 from heli_plant.world.model import (
     N_WS,
     WS_AIR,
@@ -77,7 +77,7 @@ def sense(
     step just flown; in a world the servos' positions and the air of its last sub-step are
     used instead. ``resting``: on the ground, or before the first command: no acceleration
     (the vehicle is held)."""
-    acc = np.zeros(3)
+    acc = (0.0, 0.0, 0.0)  # values, not an array made each step
     if not resting:
         if in_world and ws[WS_STEP] > 0.0:
             # views, not copies (two arrays a tick): the derivative only reads them
@@ -87,13 +87,13 @@ def sense(
             xdot = body_derivative_in_air(t_s, x, held, c, air, np.zeros(3), wp, ws, g)
         else:
             xdot = derivative(t_s, x, held, c)
-        acc[0], acc[1], acc[2] = earth_accel_from_derivative(x, xdot)
-        if x[Z_U] <= GROUND_Z_M and acc[2] < 0.0:
-            # on the ground with a net force into it (thrust short of the weight, the step
-            # that set the vehicle down): the ground's reaction holds it, as the contact
-            # model will (heli_plant.contact): it measures what a resting vehicle does
-            acc[:] = 0.0
-    mask = sensor_step(t_s, x, acc, snp, sns, out)
+        a = earth_accel_from_derivative(x, xdot)
+        # on the ground with a net force into it (thrust short of the weight, the step
+        # that set the vehicle down): the ground's reaction holds it, as the contact
+        # model will (heli_plant.contact): it measures what a resting vehicle does
+        if not (x[Z_U] <= GROUND_Z_M and a[2] < 0.0):
+            acc = a
+    mask = sensor_step3(t_s, x, acc, snp, sns, out)
     to_wire_resolution(out, mask, home)
     return mask
 
