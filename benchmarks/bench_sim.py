@@ -241,8 +241,9 @@ def bench_sensors() -> list[Row]:
     t_ahrs = wall(both, dataclasses.replace(est, attitude="ideal-ahrs"))
     rtf = sc.run.duration_s / t_all
     rows = [
+        # issue 25's target (issue 24's was 1000x)
         Row("paper 120 s at 100 Hz, everything + noisy sensors + navigation filter: real-time factor",
-            rtf, "x", *above(rtf, 1000.0)),
+            rtf, "x", *above(rtf, 1500.0)),
         Row("  the same on the attitude source and per-axis filters (ideal-ahrs)", sc.run.duration_s / t_ahrs,
             "x"),
         Row("  cost per tick of the navigation filter over the per-axis filters",
