@@ -33,6 +33,14 @@ def rot_entries(cph: float, sph: float, cth: float, sth: float, cps: float, sps:
 
 
 @njit
+def rot_euler_entries(phi: float, theta: float, psi: float) -> RotEntries:
+    """:func:`rot_body_to_earth`'s entries as scalars, row by row, from the Euler angles (no
+    array made: the control law and the sensors take them several times a tick)."""
+    cph, sph, cth, sth = math.cos(phi), math.sin(phi), math.cos(theta), math.sin(theta)
+    return rot_entries(cph, sph, cth, sth, math.cos(psi), math.sin(psi))
+
+
+@njit
 def rot_at(cph: float, sph: float, cth: float, sth: float, cps: float, sps: float) -> FloatArray:
     """:func:`rot_body_to_earth` from the Euler angles' cosines and sines."""
     r = np.empty((3, 3))

@@ -11,7 +11,7 @@ import math
 import numpy as np
 
 from heli_common.jit import njit
-from heli_common.kinematics import cross, mat_mat, mat_vec
+from heli_common.kinematics import cross, mat_mat, mat_vec, rot_euler_entries
 from heli_common.state import FloatArray
 
 
@@ -112,8 +112,4 @@ def a4_times3(omega: Vec3, j: FloatArray, j_inv: FloatArray, v: Vec3) -> Vec3:
 @njit
 def rot3(phi: float, theta: float, psi: float) -> Rot:
     """:func:`~heli_common.kinematics.rot_body_to_earth` on values, row-major."""
-    cph, sph, cth, sth = math.cos(phi), math.sin(phi), math.cos(theta), math.sin(theta)
-    cps, sps = math.cos(psi), math.sin(psi)
-    return (cth * cps, sph * sth * cps - cph * sps, cph * sth * cps + sph * sps,
-            cth * sps, sph * sth * sps + cph * cps, cph * sth * sps - sph * cps,
-            -sth, sph * cth, cph * cth)  # fmt: skip
+    return rot_euler_entries(phi, theta, psi)

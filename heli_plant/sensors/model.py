@@ -111,6 +111,7 @@ import numpy as np
 from heli_common.defaults import HOME
 from heli_common.geo import GeoPoint
 from heli_common.jit import njit
+from heli_common.kinematics import rot_euler_entries
 from heli_common.layout import Layout
 from heli_common.magnetic import earth_field_nwu_gauss
 from heli_common.measurements import (  # the out layout and mask bits are the contract's
@@ -315,11 +316,7 @@ Rot = tuple[float, float, float, float, float, float, float, float, float]
 def _rot(x: FloatArray) -> Rot:
     """:func:`~heli_common.kinematics.rot_body_to_earth` of the state's Euler angles as
     values, row-major, the same arithmetic: no array made (several a step)."""
-    cph, sph, cth, sth = math.cos(x[PHI]), math.sin(x[PHI]), math.cos(x[THETA]), math.sin(x[THETA])
-    cps, sps = math.cos(x[PSI]), math.sin(x[PSI])
-    return (cth * cps, sph * sth * cps - cph * sps, cph * sth * cps + sph * sps,
-            cth * sps, sph * sth * sps + cph * cps, cph * sth * sps - sph * cps,
-            -sth, sph * cth, cph * cth)  # fmt: skip
+    return rot_euler_entries(x[PHI], x[THETA], x[PSI])
 
 
 @njit
