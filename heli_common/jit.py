@@ -31,7 +31,8 @@ def _source_hash() -> str:
     for pkg in _JIT_PACKAGES:
         for f in sorted((_ROOT / pkg).rglob("*.py")):
             text = f.read_bytes()
-            if b"@njit" in text or f.name == "airframe.py":  # the constants' layout
+            # the constants' layout, and this module's compile options
+            if b"@njit" in text or f.name in ("airframe.py", "jit.py"):
                 h.update(str(f.relative_to(_ROOT)).encode())
                 h.update(text)
     return h.hexdigest()[:16]
@@ -43,5 +44,10 @@ if not os.environ.get("NUMBA_CACHE_DIR"):
 
 
 def njit(fn: F) -> F:
-    """Compile ``fn`` in nopython mode, cached, keeping its static signature for mypy."""
-    return cast(F, numba.njit(cache=True, nogil=True)(fn))
+    """Compile ``fn`` in nopython mode, cached, keeping its static signature for mypy.
+
+    numpy's error model: a float division by zero gives inf or NaN, as in numpy, instead of
+    a branch to raise ZeroDivisionError at every division (the kernels divide in their
+    inner loops; the control law and the estimator refuse non-finite results themselves).
+    The same bits wherever no division by zero happens."""
+    return cast(F, numba.njit(cache=True, nogil=True, error_model="numpy")(fn))

@@ -248,3 +248,22 @@ def test_a_gps_outage_in_hover_grows_the_position_sigma_over_the_drift(tmp_path)
     assert np.all(sd[k1] > 1.5 * sd[k0]) and sd[k1].max() < 2.0
     assert covered == 1.0
     assert 0.5 < drift < 1.5
+
+
+def test_nees_is_the_error_weighted_by_the_navigation_block_inverse() -> None:
+    """NEES = e^T P_nav^-1 e over the 15 navigation states (the marginal block of the 21 x 21
+    covariance), as numpy's solve has it, to rounding; inf where the block is not positive
+    definite (the elimination meets a pivot <= 0)."""
+    rng = np.random.default_rng(7)
+    st = np.zeros(ins.state_size(4))
+    a = rng.normal(size=(ins.N_ERR, ins.N_ERR))
+    p = a @ a.T + 0.1 * np.eye(ins.N_ERR)
+    st[ins.E_COV : ins.E_COV + ins.N_COV] = p.ravel()
+    st[ins.E_CHOL : ins.E_CHOL + (ins.N_NAV + 1) ** 2] = np.nan  # the scratch's old contents are not read
+    e = rng.normal(size=ins.N_ERR)
+    n = ins.N_NAV
+    want = e[:n] @ np.linalg.solve(p[:n, :n], e[:n])
+    assert ins.nees(st, e) == pytest.approx(want, rel=1e-10)
+    p[3, 3] = -1.0  # no longer positive definite
+    st[ins.E_COV : ins.E_COV + ins.N_COV] = p.ravel()
+    assert ins.nees(st, e) == math.inf

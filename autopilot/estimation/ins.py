@@ -1741,7 +1741,7 @@ def log_tick(st: FloatArray, gps_status: int, row: FloatArray) -> None:
 
 
 @njit
-def nav_error(st: FloatArray, x_true: FloatArray, gyro_bias_true: FloatArray, accel_bias_true: FloatArray,
+def nav_error(st: FloatArray, x_true: FloatArray, gyro_bias_true: Vec3, accel_bias_true: Vec3,
               err: FloatArray, at: int = 0) -> None:  # fmt: skip
     """The true error of the navigation states (the first ``N_NAV`` of the error state, into
     ``err[at:]``) from the truth: ``d_theta = Log(R^T R_true)``, the velocity and position
@@ -1774,31 +1774,32 @@ def nees(st: FloatArray, err: FloatArray, at: int = 0) -> float:
     (the marginal)."""
     # Gaussian elimination of [[P_nav, e], [e^T, 0]]: its last pivot ends as -e^T P_nav^-1 e
     # (the Schur complement), and an elimination without pivoting meets a pivot <= 0 where
-    # P_nav is not positive definite. The pivot row is taken off the rows below it from its
-    # diagonal on (the columns before it are done with), a loop the compiler runs wide.
+    # P_nav is not positive definite. The matrix stays symmetric through it, so only the
+    # upper triangle is read: row j takes f_kj = a_kj / a_kk times the pivot row. Whole rows
+    # of 16, the same width every time, are what the compiler runs widest (two vector
+    # operations a row); the columns left of a row's diagonal fill with values never read.
     m = N_NAV + 1
     a = E_CHOL
     for i in range(N_NAV):
-        for j in range(N_NAV):
+        for j in range(i, N_NAV):
             st[a + i * m + j] = st[E_COV + i * N_ERR + j]
         st[a + i * m + N_NAV] = err[at + i]
-        st[a + N_NAV * m + i] = err[at + i]
     st[a + m * m - 1] = 0.0
+    width = _wide(st, m)
     for k in range(N_NAV):
         d = st[a + k * m + k]
         if d <= 0.0:
             return math.inf
         r = 1.0 / d
-        width = _wide(st, m - k)
         for j in range(k + 1, m):
-            f = st[a + j * m + k] * r
+            f = st[a + k * m + j] * r
             for c in range(width):
-                st[a + j * m + k + c] -= f * st[a + k * m + k + c]
+                st[a + j * m + c] -= f * st[a + k * m + c]
     return -float(st[a + m * m - 1])
 
 
 @njit
-def truth_log(st: FloatArray, x_true: FloatArray, gyro_bias_true: FloatArray, accel_bias_true: FloatArray,
+def truth_log(st: FloatArray, x_true: FloatArray, gyro_bias_true: Vec3, accel_bias_true: Vec3,
               row: FloatArray) -> None:  # fmt: skip
     """The log's truth columns: the NEES over the navigation states and the true attitude
     and gyro-bias errors (the true error kept in the scratch ``E_ERR``)."""

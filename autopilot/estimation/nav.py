@@ -102,8 +102,8 @@ def nav_health(params: FloatArray, st: FloatArray) -> tuple[bool, float, int, in
 
 
 @njit
-def nav_truth(params: FloatArray, st: FloatArray, x_true: FloatArray, gyro_bias_true: FloatArray,
-              accel_bias_true: FloatArray, row: FloatArray) -> None:  # fmt: skip
+def nav_truth(params: FloatArray, st: FloatArray, x_true: FloatArray, gyro_bias_true: ins.Vec3,
+              accel_bias_true: ins.Vec3, row: FloatArray) -> None:  # fmt: skip
     """The log's truth columns where a simulation knows the truth: the navigation filter's
     NEES over its 15 navigation states and its true attitude error (NaN for ideal-ahrs)."""
     if params[H_KIND] != KIND_INS:

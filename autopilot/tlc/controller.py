@@ -296,8 +296,8 @@ def tlc_kernel(
     # --- allocation with saturation (the rotor-aware TLC: to the disc's tilt, then loop 5)
     if k.rotor.on:
         u, tm, sat_mask = flapping_loop(k, s, x[OMEGA], np.array(wc), np.array(qc), tm, first)
-    else:
-        u = np.empty(N_PITCH)
+    else:  # written where the working copy keeps its last command (commit copies it there)
+        u = s[S_LAST_U : S_LAST_U + N_PITCH]
         tm, sat_mask = allocate3(qc[0], qc[1], qc[2], tm, c, k.limits, u)
     if not all_finite(u) or not all_finite(s):
         return refuse(st, S_LAST_U, out, diag, BAD_OUTPUT)

@@ -3,9 +3,8 @@ simulation that knows them; no autopilot reads this."""
 
 from __future__ import annotations
 
-import numpy as np
-
 from heli_common.jit import njit
+from heli_common.sensors import Vec3
 from heli_common.state import FloatArray
 from heli_plant.sensors.model import (
     SNP_ACCEL_BIAS,
@@ -19,16 +18,19 @@ from heli_plant.sensors.model import (
 
 
 @njit
-def imu_bias_truth(t_s: float, params: FloatArray, state: FloatArray) -> tuple[FloatArray, FloatArray]:
+def _bias3(params: FloatArray, state: FloatArray, at: int, walk: int, jump: int, fault: bool) -> Vec3:
+    """One sensor's bias: constant + random walk (+ the fault's step)."""
+    b0, b1, b2 = params[at] + state[walk], params[at + 1] + state[walk + 1], params[at + 2] + state[walk + 2]
+    if fault:
+        return b0 + params[jump], b1 + params[jump + 1], b2 + params[jump + 2]
+    return b0, b1, b2
+
+
+@njit
+def imu_bias_truth(t_s: float, params: FloatArray, state: FloatArray) -> tuple[Vec3, Vec3]:
     """The gyro and accelerometer biases (body FLU) of the IMU's latest sample at ``t_s``:
-    the constant bias, the random walk so far, and the step after a fault's start."""
-    gyro = np.empty(3)
-    accel = np.empty(3)
+    the constant bias, the random walk so far, and the step after a fault's start. Values,
+    not arrays: a flight asks every tick."""
     fault = t_s >= params[SNP_IMU_FAULT_T]
-    for i in range(3):
-        gyro[i] = params[SNP_GYRO_BIAS + i] + state[SNS_GYRO_WALK + i]
-        accel[i] = params[SNP_ACCEL_BIAS + i] + state[SNS_ACCEL_WALK + i]
-        if fault:
-            gyro[i] += params[SNP_GYRO_STEP + i]
-            accel[i] += params[SNP_ACCEL_STEP + i]
-    return gyro, accel
+    return (_bias3(params, state, SNP_GYRO_BIAS, SNS_GYRO_WALK, SNP_GYRO_STEP, fault),
+            _bias3(params, state, SNP_ACCEL_BIAS, SNS_ACCEL_WALK, SNP_ACCEL_STEP, fault))  # fmt: skip

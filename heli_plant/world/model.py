@@ -98,6 +98,46 @@ N_WP = WORLD_PARAMS.size
 DIST_KINDS = {"constant": 0.0, "step": 1.0, "sine": 2.0}
 DIST_NONE = -1.0  # no disturbance: nothing added (not even a zero)
 
+# the integrator's work rows (each the augmented state's length): one stage's state, then
+# the four slopes
+RK_WORK = Layout("RK4 work rows", ("stage", 1), ("k1", 1), ("k2", 1), ("k3", 1), ("k4", 1))
+RK_STAGE = RK_WORK.offset("stage")
+RK_K1 = RK_WORK.offset("k1")
+RK_K2 = RK_WORK.offset("k2")
+RK_K3 = RK_WORK.offset("k3")
+RK_K4 = RK_WORK.offset("k4")
+N_RK_WORK = RK_WORK.size
+
+# the step's small buffers
+STEP_SCRATCH = Layout(
+    "plant-step scratch",
+    ("pitch_rad", N_PITCH),  # the servos' output: the pitches the rotors see
+    ("air_nwu_m_s", 3),  # the sub-step's air velocity
+    ("force_n", 3),  # a derivative's body force and torque
+    ("torque_n_m", 3),
+    ("rotor_rate", N_ROTOR),  # the rotor plant's derivative, unused, when only its inflow is wanted
+)
+SC_PITCH = STEP_SCRATCH.offset("pitch_rad")
+SC_AIR = STEP_SCRATCH.offset("air_nwu_m_s")
+SC_FORCE = STEP_SCRATCH.offset("force_n")
+SC_TORQUE = STEP_SCRATCH.offset("torque_n_m")
+SC_ROTOR_RATE = STEP_SCRATCH.offset("rotor_rate")
+N_STEP_SCRATCH = STEP_SCRATCH.size
+N_AUG = N_STATE + N_ROTOR  # the longest state a step integrates (the rotor plant's)
+
+# the world state's work area: no state, every part written before it is read. The step's
+# state, its RK4 rows and buffers, and the accelerometer's derivative live here, so a tick
+# makes no array but the next state it returns.
+WORK = Layout(
+    "plant-step work",
+    ("y", N_AUG),  # the state being integrated (augmented with the rotor plant's)
+    ("rk", N_RK_WORK * N_AUG),  # RK_WORK's rows, each as long as the state integrated
+    ("scratch", N_STEP_SCRATCH),
+)
+WK_Y = WORK.offset("y")
+WK_RK = WORK.offset("rk")
+WK_SCRATCH = WORK.offset("scratch")
+
 # world state (float64 array), advanced by the compiled step
 WORLD_STATE = Layout(
     "world state",
@@ -110,6 +150,7 @@ WORLD_STATE = Layout(
     ("rotor", rotor.N_ROTOR),  # the rotor plant's own states
     ("throttle", 1),  # the governor's throttle of the last sub-step [0, 1]
     ("governor_setpoint_rad_s", 1),  # the rotor plant's governor set point (<= 0: engine off)
+    ("work", WORK.size),  # not state: the step's and the accelerometer's buffers (WORK)
 )
 WS_STEP = WORLD_STATE.offset("step")
 WS_LAM_MAIN = WORLD_STATE.offset("lam_main")
@@ -120,6 +161,7 @@ WS_TURB = WORLD_STATE.offset("turb")
 WS_ROTOR = WORLD_STATE.offset("rotor")
 WS_THROTTLE = WORLD_STATE.offset("throttle")
 WS_GOVERNOR_SET = WORLD_STATE.offset("governor_setpoint_rad_s")
+WS_WORK = WORLD_STATE.offset("work")
 N_WS = WORLD_STATE.size
 
 
@@ -270,33 +312,6 @@ def _with_disturbance_into(
         dx[N_STATE + rotor.OMEGA_R] -= rot * dx[R_Z]
 
 
-# the integrator's work rows (each the augmented state's length): one stage's state, then
-# the four slopes; made once per call, so an RK4 step makes no array
-RK_WORK = Layout("RK4 work rows", ("stage", 1), ("k1", 1), ("k2", 1), ("k3", 1), ("k4", 1))
-RK_STAGE = RK_WORK.offset("stage")
-RK_K1 = RK_WORK.offset("k1")
-RK_K2 = RK_WORK.offset("k2")
-RK_K3 = RK_WORK.offset("k3")
-RK_K4 = RK_WORK.offset("k4")
-N_RK_WORK = RK_WORK.size
-
-# the step's small buffers, one array made once per call
-STEP_SCRATCH = Layout(
-    "plant-step scratch",
-    ("pitch_rad", N_PITCH),  # the servos' output: the pitches the rotors see
-    ("air_nwu_m_s", 3),  # the sub-step's air velocity
-    ("force_n", 3),  # a derivative's body force and torque
-    ("torque_n_m", 3),
-    ("rotor_rate", N_ROTOR),  # the rotor plant's derivative, unused, when only its inflow is wanted
-)
-SC_PITCH = STEP_SCRATCH.offset("pitch_rad")
-SC_AIR = STEP_SCRATCH.offset("air_nwu_m_s")
-SC_FORCE = STEP_SCRATCH.offset("force_n")
-SC_TORQUE = STEP_SCRATCH.offset("torque_n_m")
-SC_ROTOR_RATE = STEP_SCRATCH.offset("rotor_rate")
-N_STEP_SCRATCH = STEP_SCRATCH.size
-
-
 @njit
 def world_plant_step(
     t: float, x: FloatArray, u_cmd: FloatArray, c: PlantConstants, a: AirConstants, dt: float,
@@ -309,18 +324,23 @@ def world_plant_step(
     states (``ws[WS_ROTOR:]``) are integrated with the rigid body's; with every effect off
     this is the paper's plant alone.
 
-    The stages and the update are written element by element into buffers made once per
-    call, each sum in the order numpy's ``y + 0.5 * h * k1`` and
+    The stages and the update are written element by element into ``ws``' work area
+    (WORK: no array made but the returned state), each sum in the order numpy's ``y + 0.5 * h * k1`` and
     ``y + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)`` evaluate it (the same bits)."""
     h = dt / n_sub
-    n = N_STATE + N_ROTOR if g.on else N_STATE
-    y = np.empty(n)
+    n = N_AUG if g.on else N_STATE
+    y = ws[WS_WORK + WK_Y : WS_WORK + WK_Y + n]
     y[:N_STATE] = x
     if g.on:
         y[N_STATE:] = ws[WS_ROTOR : WS_ROTOR + N_ROTOR]
-    work = np.empty((N_RK_WORK, n))
-    ys, k1, k2, k3, k4 = work[RK_STAGE], work[RK_K1], work[RK_K2], work[RK_K3], work[RK_K4]
-    sc = np.empty(N_STEP_SCRATCH)
+    ys, k1, k2, k3, k4 = (
+        _rk_row(ws, RK_STAGE, n),
+        _rk_row(ws, RK_K1, n),
+        _rk_row(ws, RK_K2, n),
+        _rk_row(ws, RK_K3, n),
+        _rk_row(ws, RK_K4, n),
+    )
+    sc = ws[WS_WORK + WK_SCRATCH : WS_WORK + WK_SCRATCH + N_STEP_SCRATCH]
     u = sc[SC_PITCH : SC_PITCH + N_PITCH]
     u[:] = u_cmd
     w_nwu = sc[SC_AIR : SC_AIR + 3]
@@ -363,9 +383,16 @@ def world_plant_step(
     ws[WS_PITCH : WS_PITCH + N_PITCH] = u
     if g.on:
         ws[WS_ROTOR : WS_ROTOR + N_ROTOR] = y[N_STATE:]
-        y = y[:N_STATE].copy()
-    on_ground = apply_ground_contact(y, x) if contact else False
-    return y, on_ground
+    x_next = y[:N_STATE].copy()  # the one array a step makes: the state it returns
+    on_ground = apply_ground_contact(x_next, x) if contact else False
+    return x_next, on_ground
+
+
+@njit
+def _rk_row(ws: FloatArray, row: int, n: int) -> FloatArray:
+    """RK_WORK's row ``row`` in ``ws``' work area, ``n`` long (a view)."""
+    at = WS_WORK + WK_RK + row * n
+    return ws[at : at + n]
 
 
 @njit
@@ -374,13 +401,19 @@ def body_derivative_in_air(
     wp: FloatArray, ws: FloatArray, g: RotorConstants,
 ) -> FloatArray:  # fmt: skip
     """The rigid body's 12 derivatives at ``x`` (the rotor plant's states taken from ``ws``):
-    what an accelerometer on the body measures."""
+    what an accelerometer on the body measures. A view of ``ws``' work area (no array
+    made, a tick asks): read it before the next step."""
+    n = N_AUG if g.on else N_STATE
+    y = x
     if g.on:
-        y = np.empty(N_STATE + N_ROTOR)
+        y = ws[WS_WORK + WK_Y : WS_WORK + WK_Y + n]
         y[:N_STATE] = x
         y[N_STATE:] = ws[WS_ROTOR : WS_ROTOR + N_ROTOR]
-        return derivative_in_air(t, y, u, c, a, w_nwu, wp, ws, g)[:N_STATE].copy()
-    return derivative_in_air(t, x, u, c, a, w_nwu, wp, ws, g)
+    dx = _rk_row(ws, RK_K1, n)
+    sc = ws[WS_WORK + WK_SCRATCH : WS_WORK + WK_SCRATCH + N_STEP_SCRATCH]
+    _derivative_into(dx, t, y, u, c, a, w_nwu, wp, ws, g, ws[WS_LAM_MAIN], ws[WS_LAM_TAIL],
+                     sc[SC_FORCE : SC_FORCE + 3], sc[SC_TORQUE : SC_TORQUE + 3])  # fmt: skip
+    return dx[:N_STATE]
 
 
 def _unit_from(from_deg: float, elevation_deg: float) -> FloatArray:
