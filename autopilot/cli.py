@@ -36,6 +36,7 @@ from heli_common.links import ServoOutput
 from heli_common.mavlink.udp import LOOPBACK
 from heli_common.mavlink.wire import read_signing_key
 from heli_common.process import UsageError, run_main
+from heli_common.rt_priority import add_rt_priority_arg, apply_rt_priority, current_policy
 from heli_common.servo_link import add_servo_args, load_servo_link, servo_map_for, with_overrides
 from heli_common.servo_map import ServoMap, limits_array
 from heli_common.world import World
@@ -56,6 +57,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--port", type=arg.bind_port, default=None, help="sim link: UDP port to bind")
     p.add_argument("--plant-port", type=arg.port, default=None, help="sim link: the plant's UDP port")
     p.add_argument("--stale-timeout-s", type=arg.positive, default=0.5)
+    add_rt_priority_arg(p)
     p.add_argument(
         "--autostart", action="store_true", help="arm and fly the scenario trajectory at once"
     )
@@ -145,6 +147,7 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
     arg.resolve_instance(args, AUTOPILOT_PORTS)
     if args.port == args.plant_port:  # it would only hear its own commands
         raise UsageError(f"--port and --plant-port must differ (both {args.port})")
+    apply_rt_priority(args.rt_priority, args.mode, log)
     sc = Scenario.load(args.scenario, gains=args.gains)
     world = World.load(args.world) if args.world else None  # refused before anything starts
     estimator = EstimatorConfig.load(args.estimator) if args.estimator else None
@@ -200,7 +203,7 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
             "feedforward": ctrl.feedforward.value if isinstance(ctrl, TLController) else None,
             "gains": ctrl.gains.name, "controller": ctrl.kind if ctrl.kind != "user" else args.controller,
             "summary_end_s": args.summary_end_s,
-            "loop": stats.summary(), "sim_link": link,
+            "loop": stats.summary(), "scheduling": current_policy(), "sim_link": link,
             "gcs_link": gcs.stats() if gcs is not None else None,
             "servo_link": servo.link, "can": dict(can.stats) if can is not None else None,
         })  # fmt: skip

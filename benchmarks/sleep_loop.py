@@ -3,8 +3,9 @@ to its deadlines (``start + k period``, as the autopilot's real-time runner) and
 lateness by the runner's own rule (more than 2 periods late: the ticks in between are
 skipped). Prints one JSON object.
 
-``python -m benchmarks.sleep_loop RATE_HZ DURATION_S`` (started by the real-time benchmark,
-alone and beside a second loop at twice the rate, the plant's).
+``python -m benchmarks.sleep_loop RATE_HZ DURATION_S [RT_PRIORITY]`` (started by the
+real-time benchmark beside a second loop at twice the rate, the plant's; under SCHED_FIFO at
+RT_PRIORITY when given and permitted, as the flight's processes with ``--rt-priority``).
 """
 
 from __future__ import annotations
@@ -14,6 +15,8 @@ import sys
 import time
 
 import numpy as np
+
+from heli_common.rt_priority import current_policy, request_fifo
 
 SKIP_AFTER_PERIODS = 2  # autopilot.runner.RunnerConfig.skip_after_periods
 
@@ -54,4 +57,9 @@ def sleep_loop(rate_hz: float, duration_s: float) -> dict[str, float]:
 
 
 if __name__ == "__main__":
-    json.dump(sleep_loop(float(sys.argv[1]), float(sys.argv[2])), sys.stdout)
+    refused = request_fifo(int(sys.argv[3])) if len(sys.argv) > 3 else None
+    result: dict[str, object] = {**sleep_loop(float(sys.argv[1]), float(sys.argv[2]))}
+    result["scheduling"] = current_policy()
+    if refused:
+        result["refused"] = refused
+    json.dump(result, sys.stdout)

@@ -18,6 +18,7 @@ from heli_common.defaults import HOME, Exit, ports
 from heli_common.geo import parse_geo_point
 from heli_common.plant_model import PLANT_HELP
 from heli_common.process import UsageError, run_main
+from heli_common.rt_priority import add_rt_priority_arg, apply_rt_priority
 from heli_common.servo_link import add_servo_args, servo_map_for
 from heli_common.servo_map import limits_array
 from heli_common.world import World
@@ -303,6 +304,7 @@ def _run(args: argparse.Namespace) -> int:
         level=logging.INFO if args.verbose else logging.WARNING,
         format="heli-sitl: %(levelname)s %(message)s",
     )
+    apply_rt_priority(args.rt_priority, args.mode, logging.getLogger("heli-sitl"))
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     signal.signal(signal.SIGINT, lambda *_: stop.set())
@@ -387,7 +389,7 @@ def _up(args: argparse.Namespace) -> int:
         gcs_port=args.gcs_port, api_port=args.api_port, local_gcs_port=args.local_gcs_port,
         local_api_port=args.local_api_port, signing_key=args.signing_key, out=args.out,
         sysid=args.sysid, world=args.world, extra_autopilot_args=controller_args(args), plant=args.plant,
-        ccpm=args.ccpm,
+        ccpm=args.ccpm, rt_priority=args.rt_priority,
     )  # fmt: skip
     try:
         serve(opts)
@@ -412,7 +414,8 @@ def _demo(args: argparse.Namespace) -> int:
                        duration_s=args.duration_s, servo_link=args.servo_link,
                        can_bus=args.can_bus, via_ground=not args.autostart, world=args.world,
                        extra_autopilot_args=(("--gains", args.gains) if args.gains else ())
-                       + controller_args(args), extra_plant_args=("--plant", args.plant))  # fmt: skip
+                       + controller_args(args), extra_plant_args=("--plant", args.plant),
+                       rt_priority=args.rt_priority)  # fmt: skip
     try:
         summary = run_demo(opts)
     except DemoError as exc:
@@ -524,6 +527,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"the autopilot's sim-link port (default {PORTS.autopilot} + 10 N)")
     arg.add_instance_args(r, sysid=False)
     r.add_argument("--timeout-s", type=arg.positive, default=1.0, help="autopilot silent after this")
+    add_rt_priority_arg(r)
     add_servo_args(r)
     r.add_argument("--hold-until-armed", action="store_true",
                    help="in-air start: do not step until the autopilot arms")
@@ -564,6 +568,7 @@ def build_parser() -> argparse.ArgumentParser:
     u.add_argument("--world", default=None, metavar="FILE|PRESET", help=WORLD_HELP)
     u.add_argument("--plant", default="paper", metavar="paper|gavrilets|FILE", help=PLANT_HELP)
     add_controller_args(u)
+    add_rt_priority_arg(u)
     u.add_argument("--firmware", choices=("bench", "ardupilot"), default="bench",
                    help="bench: this bench's autopilot (the TLC); ardupilot: ArduPilot's arducopter-heli "
                         "SITL flies the plant (JSON backend; ground stations on TCP 5760 + 10 N)")
@@ -587,6 +592,7 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--world", default=None, metavar="FILE|PRESET", help=WORLD_HELP)
     d.add_argument("--plant", default="paper", metavar="paper|gavrilets|FILE", help=PLANT_HELP)
     d.add_argument("--gains", default=None, metavar="FILE", help=GAINS_HELP)
+    add_rt_priority_arg(d)
     add_controller_args(d)
     d.set_defaults(func=_demo)
 

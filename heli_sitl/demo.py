@@ -44,6 +44,7 @@ class DemoOptions:
     world: str | None = None  # a world file or preset name (the plant's)
     extra_plant_args: tuple[str, ...] = ()
     extra_autopilot_args: tuple[str, ...] = ()
+    rt_priority: int = 0  # real time: both loops under SCHED_FIFO at this priority (0: off)
 
 
 def _cmd(module: str) -> list[str]:
@@ -61,6 +62,7 @@ def run_demo(opts: DemoOptions) -> dict[str, object]:
         common += ["--can-bus", opts.can_bus]
     if opts.duration_s is not None and not opts.via_ground:
         common += ["--duration-s", str(opts.duration_s)]
+    common += rt_args(opts.rt_priority)
     plant_cmd = _cmd("heli_sitl.cli") + ["run", *common, "--port", str(pp),
                                          "--autopilot-port", str(ap), *opts.extra_plant_args]
     if opts.world:  # the plant flies it; the autopilot serves its SIM_ parameters
@@ -143,6 +145,7 @@ class UpOptions:
     extra_autopilot_args: tuple[str, ...] = ()  # e.g. the controller: ("--controller", "pid")
     plant: str = "paper"  # the plant model (--plant)
     ccpm: str | None = None  # a swashplate file: CCPM servo channels (heli_common.servo_map)
+    rt_priority: int = 0  # real time: both loops under SCHED_FIFO at this priority (0: off)
 
 
 def up_commands(opts: UpOptions) -> list[tuple[str, list[str]]]:
@@ -153,7 +156,7 @@ def up_commands(opts: UpOptions) -> list[tuple[str, list[str]]]:
     plant = _cmd("heli_sitl.cli") + [
         "run", "--mode", opts.mode, "--rate-hz", str(plant_rate), "--scenario", opts.scenario,
         "--port", str(pp), "--autopilot-port", str(ap), "--timeout-s", "2",
-    ] + (["--hold-until-armed"] if opts.in_air else ["--on-ground"]) + (
+    ] + rt_args(opts.rt_priority) + (["--hold-until-armed"] if opts.in_air else ["--on-ground"]) + (
         ["--world", opts.world] if opts.world else []
     ) + ["--plant", opts.plant] + ccpm_args(opts.ccpm)  # fmt: skip
     autopilot = _cmd("autopilot.cli") + [
@@ -162,11 +165,16 @@ def up_commands(opts: UpOptions) -> list[tuple[str, list[str]]]:
         "--gcs-port", str(opts.gcs_port), "--api-port", str(opts.api_port),
         "--local-gcs-port", str(opts.local_gcs_port), "--local-api-port", str(opts.local_api_port),
         "--sysid", str(opts.sysid),
-    ] + (["--world", opts.world] if opts.world else []) + (
+    ] + rt_args(opts.rt_priority) + (["--world", opts.world] if opts.world else []) + (
         ["--signing-key", opts.signing_key] if opts.signing_key else []) + (
         ["--out", opts.out] if opts.out else []
     ) + list(opts.extra_autopilot_args) + ccpm_args(opts.ccpm)  # fmt: skip
     return [("plant", plant), ("autopilot", autopilot)]
+
+
+def rt_args(rt_priority: int) -> list[str]:
+    """Both real-time loops get the same scheduling request."""
+    return ["--rt-priority", str(rt_priority)] if rt_priority else []
 
 
 def ccpm_args(ccpm: str | None) -> list[str]:
