@@ -140,10 +140,26 @@ def steal_ms() -> float:
 FLIGHT_S = 120.0  # the paper flight; the floor's loops run as long, so both meet the same hypervisor
 
 
+def poisson_rate_ci(events: int, minutes: float) -> tuple[float, float]:
+    """The exact (Garwood) 95 % interval of a Poisson rate [per minute] from ``events`` seen
+    in ``minutes``."""
+    from scipy.stats import chi2
+
+    lo = 0.0 if events == 0 else float(chi2.ppf(0.025, 2 * events)) / 2.0
+    hi = float(chi2.ppf(0.975, 2 * events + 2)) / 2.0
+    return lo / minutes, hi / minutes
+
+
 @bench("processes, real time 400 Hz")
 def bench_realtime_400() -> list[Row]:
     """The 400 Hz flight with both loops under SCHED_FIFO (``--rt-priority``) where the
-    machine permits it, and its floor's sleep loops under the same policy."""
+    machine permits it, and its floor's sleep loops under the same policy.
+
+    A skip on this machine is a single sleep woken 5-25 ms late (the hypervisor's steal
+    takes the vCPU; no tick overran), a few minutes apart: 120 s of floor sees zero, one or
+    two of them by luck. So the late wake-ups are also counted as events with their rate's
+    95 % interval, flight and floor: the flight passes while its rate is not shown to be
+    above the floor's (the intervals overlap)."""
     st0 = steal_ms()
     s = _demo(mode="realtime", rate_hz=400.0, rt_priority=DEFAULT_PRIORITY)
     st1 = steal_ms()
@@ -155,10 +171,15 @@ def bench_realtime_400() -> list[Row]:
     per_min = 60.0 / FLIGHT_S
     skipped_min = loop["skipped_ticks"] * per_min
     floor_min = floor["skipped"] * per_min
+    events = len(loop["tick_sections"]["skips"])
+    f_lo, f_hi = poisson_rate_ci(events, FLIGHT_S / 60.0)
+    b_lo, b_hi = poisson_rate_ci(int(floor["skip_events"]), FLIGHT_S / 60.0)
     return [
         Row(f"floor: bare 400 Hz sleep loop beside an 800 Hz one ({floor['scheduling']}), lateness p99",
             floor["p99_ms"], "ms"),
         Row("floor: bare 400 Hz sleep loop, skipped ticks per minute", floor_min, "ticks/min"),
+        Row(f"floor: late wake-ups (skip events) per minute, 95 % interval [{b_lo:.2f}, {b_hi:.2f}]",
+            floor["skip_events"] * per_min, "events/min"),
         Row("  CPU time the hypervisor took (steal), during the floor's loops", st2 - st1, "ms"),
         Row("  the same during the flight (its start and end included)", st1 - st0, "ms"),
         Row("period lateness p50", loop["jitter_p50_ms"], "ms"),
@@ -168,8 +189,9 @@ def bench_realtime_400() -> list[Row]:
         Row("  tick work max", loop["tick_work_max_ms"], "ms"),
         Row("overruns (a tick a period or more late)", loop["overruns"], "ticks"),
         Row(f"skipped ticks (more than 2 periods late; autopilot {s.get('scheduling')}), per minute",
-            skipped_min, "ticks/min",
-            f"<= floor ({floor_min:g})", skipped_min <= floor_min),
+            skipped_min, "ticks/min", f"<= floor ({floor_min:g})", skipped_min <= floor_min),
+        Row(f"late wake-ups (skip events) per minute, 95 % interval [{f_lo:.2f}, {f_hi:.2f}]",
+            events * per_min, "events/min", f"not above the floor's (<= {b_hi:.2f})", f_lo <= b_hi),
         Row("ticks with no new state", loop["stale_ticks"], "ticks"),
         Row("RMS error [45, 120] s", rms, "m", *below(rms, 1.2 * 0.0402)),
         *tick_section_rows(loop["tick_sections"]),

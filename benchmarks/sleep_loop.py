@@ -26,7 +26,7 @@ def sleep_loop(rate_hz: float, duration_s: float) -> dict[str, float]:
     n = round(duration_s * rate_hz)
     lateness = np.empty(n)
     n_late = 0
-    skipped = overruns = 0
+    skipped = overruns = skip_events = 0
     start = time.monotonic()
     k = 0
     while k < n:
@@ -38,6 +38,7 @@ def sleep_loop(rate_hz: float, duration_s: float) -> dict[str, float]:
         if late > SKIP_AFTER_PERIODS * period:
             skip = int(late / period)
             skipped += skip
+            skip_events += 1
             overruns += 1
             k += skip
             continue
@@ -53,6 +54,7 @@ def sleep_loop(rate_hz: float, duration_s: float) -> dict[str, float]:
         "max_ms": float(lat_ms.max()),
         "overruns": overruns,
         "skipped": skipped,
+        "skip_events": skip_events,
     }
 
 
