@@ -27,6 +27,9 @@ from heli_plant.model import Plant, plant_step
 from heli_sitl.closed_loop import SimOptions, simulate
 
 SCENARIO = "paper"
+# issue 25's 1500x as a multiple of the ideal-world tick on the host it was measured on:
+# (120 s / 1500 / 12000 ticks) / 1.829 us
+FLOORS_AT_1500X = 120.0 / 1500.0 / 12000.0 / 1.829e-6
 
 
 @cache
@@ -249,6 +252,12 @@ def bench_sensors() -> list[Row]:
         Row("  cost per tick of the navigation filter over the per-axis filters",
             (t_all - t_ahrs) / n_steps * 1e6, "us"),
         Row("  floor: the same flight in the ideal world, per tick", ideal / n_steps * 1e6, "us"),
+        # The target in floors: 1500x is 6.67 us a tick, set on the host whose ideal-world
+        # tick was 1.829 us (README, 2026-11-25); hosts lent here differ by 20 % from day
+        # to day, the ratio to the floor measured beside it does not (3.71-3.83 for one
+        # code on two hosts)
+        Row("  its tick in floors (the ideal world's tick beside it)", t_all / ideal, "x",
+            *below(t_all / ideal, FLOORS_AT_1500X)),
     ]  # fmt: skip
     # Each preset against the same code path with the sensors off: the world path with only a
     # model mismatch (constants, no work). The ideal world's flight runs another path (no
