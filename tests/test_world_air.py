@@ -268,6 +268,7 @@ def test_last_newton_step_taken_early_loses_no_accuracy(monkeypatch: pytest.Monk
     looser leaves errors of up to 19 ulp, 1e4 times looser 1500 ulp (checked)."""
     rng = np.random.default_rng(7)
     a, s = C.a_m, C.s_m
+    plain = getattr(air._solve_inflow, "py_func", air._solve_inflow)  # Python, as NUMBA_DISABLE_JIT
     early, full = [], []
     for _ in range(2000):
         theta, mu = rng.uniform(-0.05, 0.25), abs(rng.normal(0.0, 0.1))
@@ -277,7 +278,7 @@ def test_last_newton_step_taken_early_loses_no_accuracy(monkeypatch: pytest.Monk
         lam = air._solve_inflow(theta, mu, mu_z, a, s, eta_w, guess)[1]
         with monkeypatch.context() as m:
             m.setattr(air, "_QUAD_TOL", 0.0)  # the plain Python function reads it at each call
-            lam_full = air._solve_inflow.py_func(theta, mu, mu_z, a, s, eta_w, guess)[1]
+            lam_full = plain(theta, mu, mu_z, a, s, eta_w, guess)[1]
         exact = _exact_root(theta, mu, mu_z, a, s, eta_w, lam_full)
         ulp = float(np.spacing(abs(exact)))
         early.append(abs(lam - exact) / ulp)
