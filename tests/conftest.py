@@ -12,9 +12,11 @@ from dataclasses import dataclass
 import heli_common  # noqa: F401  (first: one BLAS thread per test worker, before numpy loads)
 
 # isort: split
+import lanes
 import numpy as np
 import pytest
 from hypothesis import settings
+from xdist.remote import Producer
 
 from autopilot.pid.controller import PIDController
 from autopilot.pid.gains import PidGains
@@ -36,15 +38,14 @@ settings.register_profile("heli", deadline=None)
 settings.register_profile("thorough", deadline=None, max_examples=2000)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "heli"))
 
-# pytest-xdist (`make test`: a worker per core and one more, at most four) hands out the tests file by
-# file (`--dist loadfile`), so that a module's fixtures (a running vehicle, a flown mission,
-# a MAVSDK session, the margins of a gain set) are built once, not once on each worker that
-# gets one of its tests. (An earlier set-up meant to run every process test on one worker
-# through `xdist_group` markers; the markers were added after xdist had read them, so the
-# process tests have always run side by side: each binds free loopback ports, or lives in
-# a private network namespace it makes.) The markers remain labels: `processes` (starts
-# processes on the host's loopback) and `netns` (all its processes in a namespace of its
-# own); `-m "not processes and not netns"` is the in-process suite.
+# pytest-xdist (`make test`: a real-time and a CPU worker per core, at most four, in the
+# lanes of tests/lanes.py) hands out the tests file by file (`--dist loadfile`), so that a
+# module's fixtures (a running vehicle, a flown mission, a MAVSDK session, the margins of a
+# gain set) are built once, not once on each worker that gets one of its tests. Process tests
+# run side by side: each binds free loopback ports, or lives in a private network namespace
+# it makes. The markers are labels: `processes` (starts processes on the host's loopback)
+# and `netns` (all its processes in a namespace of its own); `-m "not processes and not
+# netns"` is the in-process suite.
 PROCESS_MODULES = frozenset({
     "test_cli_and_records", "test_gcs_requests", "test_ground_client",
     "test_interop_mavproxy", "test_interop_mavsdk", "test_mavlogdump", "test_process_faults",
@@ -53,14 +54,23 @@ PROCESS_MODULES = frozenset({
 
 
 def pytest_xdist_auto_num_workers(config: pytest.Config) -> int | None:
-    """`-n auto`: a worker per core and one more. A third of the suite's worker time is a
-    real-time flight waiting on the wall clock (measured on 2 cores: 150 % CPU of 200 % with
-    a worker per core, 618 s; 177 % and 560 s with one more, every test passing); the extra
-    worker fills those waits. PYTEST_XDIST_AUTO_NUM_WORKERS still decides where it is set."""
+    """`-n auto`: a real-time and a CPU worker per core (tests/lanes.py).
+    PYTEST_XDIST_AUTO_NUM_WORKERS still decides where it is set."""
     if os.environ.get("PYTEST_XDIST_AUTO_NUM_WORKERS"):
         return None  # xdist's own hook reads it
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-    return cores + 1
+    return lanes.workers(cores)
+
+
+def pytest_xdist_make_scheduler(config: pytest.Config, log: Producer) -> lanes.LaneScheduling | None:
+    if config.getoption("dist") != "loadfile":
+        return None
+    return lanes.LaneScheduling(config, log)
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    n_workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    lanes.enter_lane(os.environ.get("PYTEST_XDIST_WORKER"), n_workers)
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:

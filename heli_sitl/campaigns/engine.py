@@ -256,15 +256,16 @@ def run(
         t_ready = time.perf_counter()
         stats.cluster_start_s = t_ready - t0
         stats.workers = len(client.scheduler_info().get("workers", {})) or workers
-        base_f = client.scatter(base, broadcast=True)
-        spec_f = client.scatter(spec, broadcast=True)
+        # The campaign and its base flight (~8 KB pickled) travel inside each task, not
+        # scattered: scattered data has no lineage, and the scheduler's active memory manager
+        # (ReduceReplicas, every 2 s) drops a broadcast's extra copies, so a worker killed
+        # mid-campaign could take the only one with it and every task left was cancelled
+        # ("lose scattered data, which can't be recovered"; test_campaign's killed worker)
         futures = []
         for ids in batches(spec, todo, stats.workers):
             key = f"flights-{spec.name}-{ids[0]}-{ids[-1]}"
             futures.append(
-                client.submit(
-                    run_batch, spec_f, base_f, ids, table[ids].tolist(), retries=3, pure=False, key=key
-                )
+                client.submit(run_batch, spec, base, ids, table[ids].tolist(), retries=3, pure=False, key=key)
             )
         done = len(have)
         for fut in as_completed(futures):
