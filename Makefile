@@ -26,9 +26,9 @@ lint: $(STAMP)
 
 test: lint
 	$(BIN)/python -m heli_sitl.warmup
-	# a worker per core and one more for the real-time flights' waits (tests/conftest.py;
-	# at most four), handed the tests file by file so that a module's
-	# fixtures are built once (tests/conftest.py); the ten slowest tests printed at the end
+	# a real-time and a CPU worker per core (at most four, in the lanes of tests/lanes.py),
+	# handed the tests file by file so that a module's fixtures are built once
+	# (tests/conftest.py); the ten slowest tests printed at the end
 	$(BIN)/pytest -q -n auto --maxprocesses 4 --dist loadfile --durations 10
 
 # prints the table and writes it into README.md's performance section (nothing copied by hand)
