@@ -5,12 +5,10 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import signal
 import sys
 import threading
 import time
 from pathlib import Path
-from types import FrameType
 
 import numpy as np
 
@@ -35,7 +33,7 @@ from heli_common.geo import parse_geo_point
 from heli_common.links import ServoOutput
 from heli_common.mavlink.udp import LOOPBACK
 from heli_common.mavlink.wire import read_signing_key
-from heli_common.process import UsageError, run_main
+from heli_common.process import UsageError, run_main, stop_on_signals
 from heli_common.rt_priority import add_rt_priority_arg, apply_rt_priority, current_policy
 from heli_common.servo_link import add_servo_args, load_servo_link, servo_map_for, with_overrides
 from heli_common.servo_map import ServoMap, limits_array
@@ -99,12 +97,7 @@ def main(argv: list[str] | None = None) -> int:
         format="heli-autopilot: %(levelname)s %(message)s",
     )
     stop = threading.Event()
-
-    def on_signal(signum: int, frame: FrameType | None) -> None:
-        stop.set()
-
-    signal.signal(signal.SIGTERM, on_signal)
-    signal.signal(signal.SIGINT, on_signal)
+    stop_on_signals(stop)
     return run_main("heli-autopilot", lambda: run(args, stop))
 
 

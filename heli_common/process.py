@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import signal
 import sys
+import threading
 from collections.abc import Callable
+from types import FrameType
 
 from heli_common.config import ConfigError
 from heli_common.defaults import Exit
@@ -23,6 +25,20 @@ def terminate_on_sigterm() -> None:
         raise KeyboardInterrupt
 
     signal.signal(signal.SIGTERM, raise_interrupt)
+
+
+def stop_on_signals(stop: threading.Event) -> None:
+    """SIGTERM and SIGINT set ``stop``, from a thread of their own. A handler runs in the main
+    thread between two bytecodes, possibly inside ``stop.wait()`` while that holds the event's
+    lock: ``stop.set()`` in the handler then waits for the lock its own thread holds, forever
+    (seen: a plant on the ground deaf to SIGTERM for 40 minutes, orphaned by its launcher).
+    The thread takes the lock once the main thread lets go of it."""
+
+    def on_signal(signum: int, frame: FrameType | None) -> None:
+        threading.Thread(target=stop.set, name="stop-on-signal", daemon=True).start()
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
 
 
 def run_main(

@@ -17,7 +17,7 @@ from heli_common.config import ConfigError
 from heli_common.defaults import HOME, Exit, ports
 from heli_common.geo import parse_geo_point
 from heli_common.plant_model import PLANT_HELP
-from heli_common.process import UsageError, run_main
+from heli_common.process import UsageError, run_main, stop_on_signals
 from heli_common.rt_priority import add_rt_priority_arg, apply_rt_priority
 from heli_common.servo_link import add_servo_args, servo_map_for
 from heli_common.servo_map import limits_array
@@ -236,7 +236,6 @@ def _compare(args: argparse.Namespace) -> int:
 def _run_ardupilot_json(args: argparse.Namespace) -> int:
     """``heli-sitl run --backend ardupilot-json``: the plant as ArduPilot SITL's external
     physics (``--model JSON``), listening on UDP 9002 + 10 N (docs/ardupilot-json.md)."""
-    import signal
     import threading
 
     from heli_common.mavlink.udp import PortBusyError
@@ -249,8 +248,7 @@ def _run_ardupilot_json(args: argparse.Namespace) -> int:
     from heli_plant.pacer import PACE_PORT_OFFSET, Pacer
 
     stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    stop_on_signals(stop)
     airframe, x0, _ = load_vehicle(args.scenario, on_ground=not args.in_air)
     world = World.load(args.world) if args.world else None
     model = PlantModel.load(args.plant)
@@ -284,7 +282,6 @@ def _run_ardupilot_json(args: argparse.Namespace) -> int:
 
 def _run(args: argparse.Namespace) -> int:
     import logging
-    import signal
     import threading
 
     if args.backend == "ardupilot-json":
@@ -306,8 +303,7 @@ def _run(args: argparse.Namespace) -> int:
     )
     apply_rt_priority(args.rt_priority, args.mode, logging.getLogger("heli-sitl"))
     stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    stop_on_signals(stop)
     airframe, x0, rate = load_vehicle(args.scenario, on_ground=args.on_ground)
     cfg = SimConfig(args.mode, args.rate_hz or rate, args.duration_s, args.timeout_s,
                     hold_until_armed=args.hold_until_armed)  # fmt: skip
