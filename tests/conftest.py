@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 from hypothesis import settings
 from xdist.remote import Producer
+from xdist.workermanage import WorkerController
 
 from autopilot.pid.controller import PIDController
 from autopilot.pid.gains import PidGains
@@ -46,11 +47,7 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "heli"))
 # it makes. The markers are labels: `processes` (starts processes on the host's loopback)
 # and `netns` (all its processes in a namespace of its own); `-m "not processes and not
 # netns"` is the in-process suite.
-PROCESS_MODULES = frozenset({
-    "test_cli_and_records", "test_gcs_requests", "test_ground_client",
-    "test_interop_mavproxy", "test_interop_mavsdk", "test_mavlogdump", "test_process_faults",
-    "test_processes", "test_world_processes",
-})  # fmt: skip
+PROCESS_MODULES = lanes.PROCESS_MODULES
 
 
 def pytest_xdist_auto_num_workers(config: pytest.Config) -> int | None:
@@ -68,9 +65,15 @@ def pytest_xdist_make_scheduler(config: pytest.Config, log: Producer) -> lanes.L
     return lanes.LaneScheduling(config, log)
 
 
+def pytest_configure_node(node: WorkerController) -> None:
+    """The controller tells each worker whether the lanes schedule it (`--dist loadfile`)."""
+    node.workerinput["lanes"] = node.config.getoption("dist") == "loadfile"
+
+
 def pytest_configure(config: pytest.Config) -> None:
-    n_workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
-    lanes.enter_lane(os.environ.get("PYTEST_XDIST_WORKER"), n_workers)
+    worker = getattr(config, "workerinput", None)
+    if worker is not None and worker.get("lanes"):  # elsewhere no worker is niced
+        lanes.enter_lane(worker["workerid"], int(worker["workercount"]))
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:

@@ -21,14 +21,17 @@ from xdist.remote import Producer
 from xdist.scheduler import LoadFileScheduling
 from xdist.workermanage import WorkerController
 
-# the files that fly on the wall clock or wait on live processes (each file is one unit)
-REALTIME_MODULES = frozenset({
-    "test_cli_and_records", "test_gcs_requests", "test_ground_client", "test_interop_mavproxy",
-    "test_interop_mavsdk", "test_mavlogdump", "test_process_faults", "test_processes",
-    "test_world_processes", "test_ardupilot_sitl", "test_ardupilot_compare", "test_ardupilot_backend",
-    "test_ardupilot_json", "test_rt_priority", "test_runner_clock", "test_can_servo",
-    "test_gcs_adversary", "test_pid",
+# the files that start processes on the host's loopback (marked `processes` by conftest)
+PROCESS_MODULES = frozenset({
+    "test_cli_and_records", "test_gcs_requests", "test_ground_client",
+    "test_interop_mavproxy", "test_interop_mavsdk", "test_mavlogdump", "test_process_faults",
+    "test_processes", "test_world_processes",
 })  # fmt: skip
+# the files that fly on the wall clock or wait on live processes (each file is one unit)
+REALTIME_MODULES = PROCESS_MODULES | {
+    "test_ardupilot_sitl", "test_ardupilot_compare", "test_ardupilot_backend", "test_ardupilot_json",
+    "test_rt_priority", "test_runner_clock", "test_can_servo", "test_gcs_adversary", "test_pid",
+}  # fmt: skip
 CPU_LANE_NICE = 10  # CFS weight 110 against 1024: a waking real-time process preempts at once
 
 
