@@ -1,4 +1,5 @@
-"""The clock the control loop reads and sleeps on, as a small contract.
+"""The clock the control loop reads and sleeps on (:mod:`heli_common.clock`, shared with
+the plant's pacer).
 
 The runner's scheduling (deadlines, overruns, skipped ticks, stall recovery) depends only
 on what the clock says, so tests drive it with a fake clock whose time they move by hand,
@@ -7,34 +8,6 @@ with no real sleeping; the processes use :class:`SystemClock`, the ``time`` modu
 
 from __future__ import annotations
 
-import time
-from typing import Protocol
+from heli_common.clock import Clock, SystemClock
 
-
-class Clock(Protocol):
-    """Monotonic time for scheduling, a sleep, and a fine counter for measuring work."""
-
-    def monotonic(self) -> float:
-        """Seconds from an arbitrary origin; never goes back."""
-        ...
-
-    def sleep(self, seconds: float) -> None:
-        """Block for ``seconds`` (at least)."""
-        ...
-
-    def perf_counter(self) -> float:
-        """The highest-resolution seconds counter, for durations only."""
-        ...
-
-
-class SystemClock:
-    """The real clocks of the ``time`` module."""
-
-    def monotonic(self) -> float:
-        return time.monotonic()
-
-    def sleep(self, seconds: float) -> None:
-        time.sleep(seconds)
-
-    def perf_counter(self) -> float:
-        return time.perf_counter()
+__all__ = ["Clock", "SystemClock"]

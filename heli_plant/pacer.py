@@ -9,17 +9,21 @@ to UDP ``port_for_instance(N) + PACE_PORT_OFFSET``, the physics time up to which
 ready (one little-endian float64 [s]); the physics does not step past it. A NaN or +inf
 releases the physics; so does a client silent for ``release_after_s`` of wall time (a
 ground station that died must not freeze the simulation). Without a client nothing waits.
+
+The pacer reads the time on an injected :class:`~heli_common.clock.Clock` (the ``time``
+module's by default): the clock says when a silent client is given up and how long the
+physics waited; a datagram wakes the wait at once. Tests drive it on a fake clock.
 """
 
 from __future__ import annotations
 
 import math
 import select
-import time
 from dataclasses import dataclass
 
 from heli_common.ardupilot_json import PACE as _PACE
 from heli_common.ardupilot_json import PACE_PORT_OFFSET, encode_pace
+from heli_common.clock import Clock, SystemClock
 from heli_common.closing import Closing
 from heli_common.mavlink.udp import LOOPBACK, bind_udp
 
@@ -31,16 +35,18 @@ class PacerCounts:
     datagrams: int = 0
     refused: int = 0  # not 8 bytes
     waits: int = 0  # steps that waited for the client
-    wait_s: float = 0.0  # wall time spent waiting
+    wait_s: float = 0.0  # time spent waiting, on the pacer's clock
     releases: int = 0  # a client released the physics, or went silent
 
 
 class Pacer(Closing):
-    """Bound to 127.0.0.1:``port``; ``wait_until(t)`` before stepping to physics time ``t``."""
+    """Bound to 127.0.0.1:``port`` (0: a free port the system picks, read from ``sock``);
+    ``wait_until(t)`` before stepping to physics time ``t``."""
 
-    def __init__(self, port: int, release_after_s: float = 5.0) -> None:
+    def __init__(self, port: int, release_after_s: float = 5.0, clock: Clock | None = None) -> None:
         self.sock = bind_udp((LOOPBACK, port))
         self.release_after_s = release_after_s
+        self.clock: Clock = SystemClock() if clock is None else clock
         self.until_s: float | None = None  # None: no client, nothing waits
         self.counts = PacerCounts()
         self._last_heard = 0.0
@@ -62,7 +68,7 @@ class Pacer(Closing):
                 self.counts.refused += 1
                 continue
             (t,) = _PACE.unpack(data)
-            self._last_heard = time.monotonic()
+            self._last_heard = self.clock.monotonic()
             if math.isnan(t) or math.isinf(t):
                 if self.until_s is not None:
                     self.counts.releases += 1
@@ -76,13 +82,13 @@ class Pacer(Closing):
         if self.until_s is None or t_s <= self.until_s:
             return
         self.counts.waits += 1
-        w0 = time.monotonic()
+        w0 = self.clock.monotonic()
         while self.until_s is not None and t_s > self.until_s:
-            left = self._last_heard + self.release_after_s - time.monotonic()
+            left = self._last_heard + self.release_after_s - self.clock.monotonic()
             if left <= 0.0:  # a silent client: run free
                 self.until_s = None
                 self.counts.releases += 1
                 break
             select.select([self.sock], [], [], min(left, 0.5))
             self._read()
-        self.counts.wait_s += time.monotonic() - w0
+        self.counts.wait_s += self.clock.monotonic() - w0
