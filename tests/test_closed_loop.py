@@ -55,14 +55,20 @@ def rms(rec: FlightRecord, t0: float, t1: float) -> float:
     return float(np.sqrt(np.mean(rec.pos_err_m[m] ** 2)))
 
 
+# RMS 3-D position error over [45, 120] s, pseudo feedforward, by control rate [Hz], as the
+# in-process flight (deterministic: no random input, no clock) measures it
+RMS_PSEUDO_M = {50.0: 0.04087643272, 100.0: 0.04015409621, 400.0: 0.03962897467}
+
+
 def test_paper_pseudo_100hz(paper: Scenario) -> None:
     """Spec section 7 at 100 Hz, pseudo-differentiators everywhere."""
     rec = run(paper, "pseudo")
     t, e = rec.t_s, rec.pos_err_m
     assert rec.t_s[-1] == pytest.approx(120.0)
     assert np.all(np.isfinite(rec.x))
-    assert rms(rec, 45, 120) <= 0.05  # target: about 0.040
-    assert rms(rec, 45, 120) >= 0.02  # the pseudo-differentiator lag is really there
+    # target: about 0.040; README: 0.0402. A deterministic flight: pinned (its own 0.0037 m
+    # with the exact feedforward shows the pseudo-differentiator lag is really there)
+    assert rms(rec, 45, 120) == pytest.approx(RMS_PSEUDO_M[100.0], rel=1e-6)
     assert e[rec.window(40, 45)].max() <= 0.3  # target: about 0.25, mostly z
     z_err = np.abs(rec.ref[:, 2] - rec.x[:, Z_U])
     assert z_err[rec.window(40, 45)].max() > 0.8 * e[rec.window(40, 45)].max()
@@ -97,7 +103,7 @@ def test_paper_pseudo_saturates_only_at_start(paper: Scenario) -> None:
 
 def test_paper_exact_100hz(paper: Scenario) -> None:
     rec = run(paper, "exact")
-    assert rms(rec, 45, 120) <= 0.006  # target: about 0.004
+    assert rms(rec, 45, 120) == pytest.approx(0.003678420, rel=1e-6)  # target: about 0.004; README 0.0037
     assert int(np.count_nonzero(rec.saturated)) == 0
     assert rec.pos_err_m[rec.window(40, 45)].max() <= 0.3
     assert np.abs(rec.x[:, PHI]).max() < 0.2
@@ -106,11 +112,13 @@ def test_paper_exact_100hz(paper: Scenario) -> None:
 
 @pytest.mark.parametrize("rate_hz", [50.0, 400.0])
 def test_paper_rate_sensitivity(paper: Scenario, rate_hz: float) -> None:
-    """Spec: 0.0409 / 0.0402 / 0.0396 m RMS over [45, 120] at 50 / 100 / 400 Hz."""
+    """Spec: 0.0409 / 0.0402 / 0.0396 m RMS over [45, 120] at 50 / 100 / 400 Hz: a faster
+    loop tracks better, by 0.0007 m from 100 to 50 Hz and 0.0005 m from 100 to 400 Hz."""
     rec = run(paper, "pseudo", rate_hz)
     r = rms(rec, 45, 120)
-    assert r <= 0.05
-    assert abs(r - rms(run(paper, "pseudo"), 45, 120)) < 0.003
+    assert r == pytest.approx(RMS_PSEUDO_M[rate_hz], rel=1e-6)
+    assert round(r, 4) == {50.0: 0.0409, 400.0: 0.0396}[rate_hz]  # the spec's digits
+    assert (r > rms(run(paper, "pseudo"), 45, 120)) == (rate_hz < 100.0)
     assert np.all(rec.t_s[rec.saturated] < 1.0)
 
 
