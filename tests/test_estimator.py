@@ -23,6 +23,7 @@ from typing import Any
 import numba
 import numpy as np
 import pytest
+from filterpy import kalman
 from numpy.testing import assert_allclose, assert_array_equal
 from scipy.linalg import expm
 from scipy.stats import chi2
@@ -430,7 +431,6 @@ def test_axis_model_matches_continuous_time_theory() -> None:
 
 
 def test_matches_filterpy_step_for_step() -> None:
-    kalman = pytest.importorskip("filterpy.kalman")
     cfg = config_for(1.0, 0.1)
     m = circle(10.0)
     s = sense(m, cfg, np.random.default_rng(5))

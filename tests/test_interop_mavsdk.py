@@ -23,20 +23,16 @@ from typing import Any
 
 import numpy as np
 import pytest
+from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
+from mavsdk.asyncio.plugins.action import ActionAsync
+from mavsdk.asyncio.plugins.mission_raw import MissionItem as RawItem
+from mavsdk.asyncio.plugins.mission_raw import MissionRawAsync
+from mavsdk.asyncio.plugins.telemetry import FlightMode, LandedState, TelemetryAsync
 from vehicle import free_ports, spawn_up
 
 from heli_common.frames import flip
 from heli_common.geo import GeoPoint, nwu_to_geo
 from heli_common.mavlink import mission_items as ms
-
-try:
-    from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
-    from mavsdk.asyncio.plugins.action import ActionAsync
-    from mavsdk.asyncio.plugins.mission_raw import MissionItem as RawItem
-    from mavsdk.asyncio.plugins.mission_raw import MissionRawAsync
-    from mavsdk.asyncio.plugins.telemetry import FlightMode, LandedState, TelemetryAsync
-except Exception as exc:  # the wheel's native library cannot load on this machine
-    pytest.skip(f"MAVSDK cannot run here: {exc}", allow_module_level=True)
 
 HOME = GeoPoint(47.397742, 8.545594, 488.0)
 START_S = 60.0
