@@ -25,6 +25,7 @@ BenchFn = Callable[[], list[Row]]
 REGISTRY: list[tuple[str, BenchFn]] = []
 MODULES = (
     "benchmarks.bench_sim",
+    "benchmarks.bench_estimator",
     "benchmarks.bench_can",
     "benchmarks.bench_processes",
     "benchmarks.bench_campaign",

@@ -8,19 +8,18 @@ attitude source with its configured white error, GPS at 5 Hz with 100 ms latency
 NEES in its chi-square bounds, RMS error below the GPS noise, the delayed-fix handling
 (exactly the no-latency filter when both have the same fixes; as good as it on average;
 better than applying late fixes as current), white innovations, step-for-step agreement
-with filterpy's KalmanFilter, determinism, and the cost of a tick (printed).
+with filterpy's KalmanFilter, and determinism. The cost of a tick is a benchmark
+(benchmarks/bench_estimator.py, ``python -m benchmarks navigation``).
 """
 
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-import numba
 import numpy as np
 import pytest
 from filterpy import kalman
@@ -40,9 +39,6 @@ from autopilot.estimation.kf import (
     RESET,
     TOO_OLD,
     axis_model,
-    est_gps,
-    est_output,
-    est_predict,
 )
 from heli_common.config import ConfigError
 from heli_common.kinematics import euler_rate_matrix, rot_body_to_earth
@@ -651,65 +647,3 @@ def test_config_loads_from_toml(tmp_path: Path) -> None:
     p.write_text("gate_probability = 1.5\n")
     with pytest.raises(ConfigError, match="gate_probability"):
         EstimatorConfig.load(p)
-
-
-# ------------------------------------------------------------------ (g): cost
-
-
-@numba.njit
-def _bench(
-    params: FloatArray,
-    st: FloatArray,
-    n: int,
-    gyro: FloatArray,
-    accel: FloatArray,
-    att: FloatArray,
-    out: FloatArray,
-) -> float:
-    acc = 0.0
-    for k in range(n):
-        est_predict(params, st, (k + 1) * 0.01, gyro, accel, att)
-        est_output(st, out)
-        acc += out[2]
-    return acc
-
-
-def test_cost_of_a_tick() -> None:
-    est = Estimator(EstimatorConfig(), np.zeros(N_STATE), RATE_HZ)
-    est.warm_up()
-    gyro, att = np.zeros(3), np.zeros(3)
-    accel = np.array([0.0, 0.0, G])
-    out = np.zeros(N_STATE)
-    p, st = est.params, est.state
-    est_predict(p, st, 0.0, gyro, accel, att)
-    _bench(p, st.copy(), 10, gyro, accel, att, out)
-    n = 20000
-    t0 = time.perf_counter()
-    _bench(p, st, n, gyro, accel, att, out)
-    in_loop = (time.perf_counter() - t0) / n
-    t_now = n * 0.01
-    t0 = time.perf_counter()
-    for k in range(n):
-        est_predict(p, st, t_now + (k + 1) * 0.01, gyro, accel, att)
-        est_output(st, out)
-    from_python = (time.perf_counter() - t0) / n
-    t_now += n * 0.01
-    pos, vel = np.zeros(3), np.zeros(3)
-    m = 2000
-    t0 = time.perf_counter()
-    for k in range(m):  # each fix 100 ms late: roll back 10 ticks and re-propagate
-        est_predict(p, st, t_now + (k + 1) * 0.01, gyro, accel, att)
-        est_gps(p, st, t_now + (k + 1) * 0.01 - 0.1, pos, vel)
-    gps = (time.perf_counter() - t0) / m
-    t_now += m * 0.01
-    imu = ImuSample(0.0, (0.0, 0.0, 0.0), (0.0, 0.0, G))
-    a = AttitudeSample(0.0, (0.0, 0.0, 0.0))
-    t0 = time.perf_counter()
-    for k in range(n):
-        est.update(t_now + (k + 1) * 0.01, imu, a)
-    wrapper = (time.perf_counter() - t0) / n
-    print(
-        f"\nper tick: est_predict + est_output {in_loop * 1e6:.2f} us inside a compiled loop, "
-        f"{from_python * 1e6:.2f} us called from Python; predict + 100 ms-late GPS fix (replay of "
-        f"10 ticks) {gps * 1e6:.2f} us; Estimator.update (no fix) {wrapper * 1e6:.2f} us"
-    )
