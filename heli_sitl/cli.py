@@ -25,6 +25,8 @@ from heli_common.world import World
 
 if TYPE_CHECKING:
     from autopilot.flight_metrics import FlightMetrics
+    from autopilot.pid.gains import PidGains
+    from autopilot.scenario import Scenario
     from heli_common.links import ServoInput
 
 GAINS_HELP = ("the controller's gain set instead of the scenario's (configs/: gains_paper.toml, "
@@ -197,6 +199,8 @@ def _margins(args: argparse.Namespace) -> int:
     from autopilot.design_point import MIN_DISK_MARGIN
 
     pid = PidGains.load(args.gains or "gains_pid.toml") if args.controller == "pid" else None
+    if args.loops:
+        return _loop_margins(args, scenario, pid)
     design = (pid or scenario.gains).design
     if args.design and (args.plant or args.servos):
         raise UsageError("--design checks the gain file's [design] plant and servos: no --plant, --servos")
@@ -220,6 +224,28 @@ def _margins(args: argparse.Namespace) -> int:
         verdict = f"passes {limit} at every break point" if ok else f"FAILS: unstable or below {limit}"
         print(f"# design point ({design.plant} plant, servos {design.servos}): {verdict}")
         return 0 if ok else 1
+    return 0
+
+
+def _loop_margins(args: argparse.Namespace, scenario: Scenario, pid: PidGains | None) -> int:
+    """``heli-sitl margins --loops``: each loop and channel opened alone about hover, the
+    servo model in it (autopilot.analysis.margins; the PID's by autopilot.analysis.pid_margins)."""
+    import dataclasses
+
+    from autopilot.analysis.margins import SERVO_MODELS, format_table, loop_margins
+    from autopilot.analysis.pid_margins import pid_loop_margins
+
+    if args.design or args.plant or args.servos:
+        raise UsageError("--loops takes the servo models ideal, default and sloppy on the linear plant: "
+                         "no --design, --plant, --servos")  # fmt: skip
+    reports = []
+    for sv in SERVO_MODELS.values():
+        servo = dataclasses.replace(sv, rate_hz=scenario.run.rate_hz)
+        if pid is not None:
+            reports.append(pid_loop_margins(pid, servo))
+        else:
+            reports.append(loop_margins(scenario.gains, servo))
+    print(format_table(reports))
     return 0
 
 
@@ -647,6 +673,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="check the gain file's design point ([design] plant and servos): exit 1 below 0.66")
     mg.add_argument("--scenario", default="paper", help="the design airframe and control rate")
     mg.add_argument("--all", action="store_true", help="every break point, not only the worst")
+    mg.add_argument("--loops", action="store_true",
+                    help="loop at a time instead: each loop and channel opened alone (crossover, phase, gain "
+                         "and delay margins) behind the servo models ideal, default and sloppy")  # fmt: skip
     mg.set_defaults(func=_margins)
 
     c = sub.add_parser("campaign", help="fly a campaign of flights in-process on Dask; Parquet, figures")

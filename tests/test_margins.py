@@ -346,3 +346,23 @@ def test_the_pid_rate_derivative_adds_phase() -> None:
     b = pid_loop_margins(with_d, DEFAULT_SERVOS).get(4, "roll")
     print(f"rate loop, 10 + 20 ms servos: PM {a.phase_margin_deg:.1f} deg, kd 0.3: {b.phase_margin_deg:.1f}")
     assert b.phase_margin_deg > a.phase_margin_deg + 5.0 and b.crossover_rad_s < a.crossover_rad_s
+
+
+def test_heli_sitl_margins_loops_prints_the_loop_at_a_time_table(capsys: pytest.CaptureFixture[str]) -> None:
+    """``heli-sitl margins --controller pid --loops``: the tuned PID's loops 1-4 behind each
+    servo model, as pid_loop_margins computes them; the TLC's by loop_margins."""
+    from autopilot.analysis.margins import SERVO_MODELS, format_table
+    from autopilot.analysis.pid_margins import pid_loop_margins
+    from autopilot.pid.gains import PidGains
+    from heli_sitl.cli import main
+
+    assert main(["margins", "--controller", "pid", "--loops"]) == 0
+    out = capsys.readouterr().out
+    pid = PidGains.load("gains_pid.toml")
+    assert out.strip() == format_table([pid_loop_margins(pid, sv) for sv in SERVO_MODELS.values()]).strip()
+    # the rate loop behind the default servos (10 ms + 20 ms): 45.5 deg, 43 ms of delay margin
+    assert "| 10 ms + 20 ms | 4 | roll/pitch | 18.57 | 45.5 | 12.2 | 43 | yes |" in out
+    assert main(["margins", "--loops"]) == 0
+    assert "| paper Table 2 | 10 ms + 20 ms | 4 |" in capsys.readouterr().out
+    assert main(["margins", "--loops", "--plant", "paper"]) == 2  # a linear plant of its own
+    assert "--loops" in capsys.readouterr().err

@@ -1,6 +1,7 @@
 """Linear margins of the PID baseline's four loops with a servo model in the loop, by the
 same method and approximations as the TLC's (:mod:`autopilot.analysis.margins`), so the two
-controllers' margins compare like for like.
+controllers' margins compare like for like. ``heli-sitl margins --controller pid --loops``
+prints them for the servo models ideal, default and sloppy.
 
 About hover, one channel at a time (the numbering of the TLC's loops, inner to outer):
 
@@ -88,21 +89,3 @@ def pid_loop_margins(gains: PidGains, servo: ServoModel, *, pade_order: int = PA
             sys = ct.frd(np.asarray(lo.num / lo.den, dtype=complex), OMEGA_GRID)
             loops.append(_margins(sys, loop, name, stable))
     return MarginReport(gains.name, servo, "exact", False, tuple(loops))
-
-
-def main() -> None:  # pragma: no cover - a convenience: python -m autopilot.analysis.pid_margins
-    """The tuned PID's and both TLC gain sets' loop margins with each servo model."""
-    import sys
-
-    from autopilot.analysis.margins import SERVO_MODELS, format_table, loop_margins
-    from autopilot.tlc.gains import Gains
-
-    pid = sys.argv[1] if len(sys.argv) > 1 else "gains_pid.toml"
-    tlcs = sys.argv[2:] or ["gains_paper.toml", "gains_servo_aware.toml"]
-    reports = [pid_loop_margins(PidGains.load(pid), sv) for sv in SERVO_MODELS.values()]
-    reports += [loop_margins(Gains.load(p), sv) for p in tlcs for sv in SERVO_MODELS.values()]
-    print(format_table(reports))
-
-
-if __name__ == "__main__":  # pragma: no cover
-    main()

@@ -65,7 +65,6 @@ from heli_common.kinematics import (
     quat_from_rotvec,  # noqa: F401 (the tests take Exp from here, as the filter's own)
     rot_body_to_earth,
     rot_from_quat,
-    wrap_pi,
 )
 from heli_common.layout import Layout
 from heli_common.measurements import (
@@ -552,19 +551,6 @@ def _wide(st: FloatArray, n: int) -> int:
     """``n`` as a loop bound the compiler cannot see through (the state array is longer): a
     constant one has the loop unrolled into scalar code before it can run wide."""
     return min(n, st.size)
-
-
-@njit
-def mag_heading(field_flu: FloatArray, phi: float, theta: float, declination: float) -> float:
-    """True heading (ZYX yaw, NWU: positive toward west) from a body field and the roll
-    and pitch: the field levelled, ``m_h = Ry(theta) Rx(phi) m_b``, has the azimuth
-    ``atan2(m_W, m_N) - psi`` and ``atan2(m_W, m_N) = -declination``."""
-    cph, sph = math.cos(phi), math.sin(phi)
-    cth, sth = math.cos(theta), math.sin(theta)
-    mx, my, mz = field_flu[0], field_flu[1], field_flu[2]
-    hx = cth * mx + sth * (sph * my + cph * mz)
-    hy = cph * my - sph * mz
-    return wrap_pi(-declination - math.atan2(hy, hx))
 
 
 # ------------------------------------------------------------------ prediction
