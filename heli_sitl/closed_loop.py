@@ -3,9 +3,13 @@
 This loop is the only owner of time here: tick k is at t = k / rate, the controller sees
 the state at t, its pitches are held (zero-order hold) while the plant integrates to t+dt.
 The loop itself is compiled and calls the very kernels the processes use
-(:func:`~autopilot.tlc.controller.tlc_kernel`, :func:`~heli_plant.model.plant_step`,
-:func:`~heli_plant.model.accept_pitches`); a trajectory is a pure function of time, so
-the references for every tick are sampled up front.
+(:func:`~autopilot.tlc.controller.tlc_kernel`, :func:`~heli_plant.model.plant_step`, and
+:func:`~heli_plant.model.accept_pitches` behind the sim link's rounding,
+:func:`~heli_common.mavlink.sim_protocol.pitches_as_received`); a trajectory is a pure function of time, so
+the references for every tick are sampled up front. What would cross the sim link is
+rounded as the link rounds it (the state the controller sees, the pitches the plant holds,
+the sensors' samples): a lockstep flight of the same scenario is the same flight, bit for
+bit (docs/architecture.md, "Lockstep and in-process").
 """
 
 from __future__ import annotations
@@ -35,7 +39,7 @@ from autopilot.tlc.controller import (
 from autopilot.user_controller import BUILT_IN, UserController, is_user_spec
 from heli_common.airframe import PlantConstants
 from heli_common.jit import njit
-from heli_common.mavlink.sim_protocol import as_received
+from heli_common.mavlink.sim_protocol import as_received, pitches_as_received, state_as_received
 from heli_common.measurements import N_OUT
 from heli_common.plant_model import PlantModel
 from heli_common.sensor_wire import N_HOME
@@ -103,10 +107,14 @@ def _advance(
     held: FloatArray, c: PlantConstants, n_sub: int, dt: float, in_world: bool, air: AirConstants,
     wp: FloatArray, ws: FloatArray, servo_p: FloatArray, servo_s: FloatArray, dryden: FloatArray,
     airs: FloatArray, applied: FloatArray, loop_s: FloatArray, g: RotorConstants, rotors: FloatArray,
+    sim_link: bool,
 ) -> FloatArray:  # fmt: skip
     """The command ``out`` held while the plant integrates from t[i] to t[i+1]; the world's
     truth of that hold logged in row i+1. Returns the next state."""
-    accept_pitches(out, lo, hi, held)
+    if sim_link:  # the plant holds what the sim link delivers of the command (float32, normalised)
+        pitches_as_received(out, lo, hi, held)
+    else:
+        accept_pitches(out, lo, hi, held)
     x, on_ground = world_plant_step(t[i], x, held, c, air, dt, n_sub, True, wp, ws, servo_p, servo_s,
                                     dryden, g)  # fmt: skip
     if in_world:
@@ -162,15 +170,24 @@ def _run_ticks(
     pid_state: FloatArray,
     g: RotorConstants,
     rotors: FloatArray,
+    sim_link: bool = False,
 ) -> FloatArray:
+    """Ticks ``k0`` to ``k1 - 1``. ``sim_link``: round what would cross the sim link as the
+    link rounds it (the controller flies on the float32 state, the plant holds the float32
+    normalised pitches), so that the flight is a lockstep flight's, bit for bit; off, the
+    loop is the exact arithmetic of the model (the tests' equilibria and linearisations)."""
     x = x0.copy()
     out = np.empty(N_PITCH)
     diag = np.zeros(N_DIAG)
     for i in range(k0, k1):
+        # the controller flies on the state, as the sim link carries it (float32 fields), or
+        # on the estimate from the sensors' samples (rounded as the link carries them)
         xc = x
         if sensing:
             xc = _observe(i, t, x, held, c, in_world, air, wp, ws, snp, sns, meas, home, eparams, est,
                           x_hats, est_log, loop_s, g)  # fmt: skip
+        elif sim_link:
+            xc = state_as_received(x)
         if use_pid:
             pid_kernel(kp, pid_state, xc, refs[i], False, out, diag)
         else:
@@ -180,7 +197,7 @@ def _run_ticks(
         diags[i] = diag
         if i < n_last:
             x = _advance(i, t, x, out, lo, hi, held, c, n_sub, k.dt_s, in_world, air, wp, ws, servo_p,
-                         servo_s, dryden, airs, applied, loop_s, g, rotors)  # fmt: skip
+                         servo_s, dryden, airs, applied, loop_s, g, rotors, sim_link)  # fmt: skip
     return x
 
 
@@ -227,13 +244,13 @@ def simulate(
         # the servos start where the first command puts them, as in the plant process; that
         # command answers the state the controller sees first (the estimate, from sensors)
         flying: TLController | PIDController | UserController = user or (pid if use_pid else ctrl)
-        x_first = sn.first_estimate(plant) if sn.on else x
+        x_first = sn.first_estimate(plant) if sn.on else as_received(x)
         if isinstance(flying, UserController):
             first = copy.deepcopy(flying).update(0.0, x_first, refs[0])
         else:
             first = flying.trial_update(0.0, x_first, refs[0])
         u0 = plant.u.copy()
-        accept_pitches(first, plant.lo, plant.hi, u0)
+        pitches_as_received(first, plant.lo, plant.hi, u0)
         plant.world.prepare(1.0 / rate_hz / plant.substeps, u0, np.column_stack([plant.lo, plant.hi]))
 
 
@@ -244,7 +261,7 @@ def simulate(
             ctrl.constants, state, plant.constants, plant.lo, plant.hi, held, x, refs, t, k0, k1, n,
             plant.substeps, xs, us, diags, plant.world is not None, w.air, w.wp, ws, w.servo_p,
             servo_s, w.dryden, airs, applied, sn.on, sn.snp, sns, meas, sn.home, sn.eparams, est,
-            sn.x_hats, sn.log, loop_s, use_pid, pid.constants, pid_state, g, rotors,
+            sn.x_hats, sn.log, loop_s, use_pid, pid.constants, pid_state, g, rotors, True,
         )  # fmt: skip
 
     def user_ticks(u: UserController, k0: int, k1: int, held: FloatArray, ws: FloatArray, servo_s: FloatArray,
@@ -254,11 +271,12 @@ def simulate(
         sensing and plant steps around it (a wrapped TLC flies bit for bit as compiled)."""
         in_world = plant.world is not None
         for i in range(k0, k1):
-            xc = x
             if sn.on:
                 xc = _observe(i, t, x, held, plant.constants, in_world, w.air, w.wp, ws, sn.snp, sns,
                               meas, sn.home, sn.eparams, est, sn.x_hats, sn.log, loop_s,
                               g)  # fmt: skip
+            else:  # as the sim link carries it (see _run_ticks)
+                xc = state_as_received(x)
             out = u.update(float(t[i]), xc, refs[i])
             xs[i] = x
             us[i] = out
@@ -266,7 +284,7 @@ def simulate(
             if i < n:
                 x = _advance(i, t, x, out, plant.lo, plant.hi, held, plant.constants, plant.substeps,
                              ctrl.constants.dt_s, in_world, w.air, w.wp, ws, w.servo_p, servo_s, w.dryden,
-                             airs, applied, loop_s, g, rotors)  # fmt: skip
+                             airs, applied, loop_s, g, rotors, True)  # fmt: skip
         return x
 
     loop_s = np.zeros(1)

@@ -10,6 +10,7 @@ limits (:mod:`heli_common.servo_map`), and ``mode`` carries MAV_MODE_FLAG_SAFETY
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any, NamedTuple, Protocol
 
@@ -18,6 +19,8 @@ import numpy as np
 from heli_common import frames, servo_map
 from heli_common.mavlink.fast import Decoded, SimCodec, hil_alt_vel
 from heli_common.mavlink.udp import MavlinkUdp, Message, mavlink2
+from heli_common.jit import njit
+from heli_common.layout import Layout
 from heli_common.state import EULER, N_PITCH, OMEGA, POS, VEL, FloatArray
 
 
@@ -30,6 +33,15 @@ class StateFields(NamedTuple):
     vel_ned_cm_s: tuple[int, int, int]
     pos_ned_m: tuple[float, float, float]
     vel_ned_m_s: tuple[float, float, float]
+
+
+# The state's fields the autopilot reads back (ATTITUDE, LOCAL_POSITION_NED; float32 each)
+WIRE_STATE = Layout("wire state", ("euler_frd", 3), ("rates_frd", 3), ("pos_ned", 3), ("vel_ned", 3))
+WIRE_EULER = WIRE_STATE.offset("euler_frd")
+WIRE_RATES = WIRE_STATE.offset("rates_frd")
+WIRE_POS = WIRE_STATE.offset("pos_ned")
+WIRE_VEL = WIRE_STATE.offset("vel_ned")
+N_WIRE_STATE = WIRE_STATE.size
 
 
 def state_fields(x: FloatArray) -> StateFields:
@@ -54,13 +66,56 @@ def state_messages(t_us: int, x: FloatArray) -> list[Message]:
     return [hil, att, lpn]
 
 
+@njit
+def state_as_received(x: FloatArray) -> FloatArray:
+    """The state ``x`` as the autopilot decodes it from the sim link: ATTITUDE's and
+    LOCAL_POSITION_NED's float32 fields (the yaw wrapped), back in the plant's layout. The
+    in-process loop's controller flies on this, so that it sees the very numbers a
+    lockstep autopilot sees (the link's rounding is the only thing the two flights would
+    otherwise not share)."""
+    f = frames.state_to_ned_fields(x)
+    e, w, p, v = frames.NF_EULER, frames.NF_RATES, frames.NF_POS, frames.NF_VEL
+    r = np.empty(N_WIRE_STATE)
+    for k in range(3):
+        r[WIRE_EULER + k] = np.float32(f[e + k])
+        r[WIRE_RATES + k] = np.float32(f[w + k])
+        r[WIRE_POS + k] = np.float32(f[p + k])
+        r[WIRE_VEL + k] = np.float32(f[v + k])
+    return frames.state_from_ned_fields(
+        r[WIRE_EULER], r[WIRE_EULER + 1], r[WIRE_EULER + 2], r[WIRE_RATES], r[WIRE_RATES + 1],
+        r[WIRE_RATES + 2], r[WIRE_POS], r[WIRE_POS + 1], r[WIRE_POS + 2], r[WIRE_VEL],
+        r[WIRE_VEL + 1], r[WIRE_VEL + 2],
+    )  # fmt: skip
+
+
 def as_received(x: FloatArray) -> FloatArray:
     """The state ``x`` as the autopilot decodes it from the sim link (float32 fields, the
     yaw wrapped): what an in-process estimator starts from to start where the process one
     does."""
-    f = state_fields(x)
-    r = [float(np.float32(v)) for v in (*f.att, *f.pos_ned_m, *f.vel_ned_m_s)]
-    return frames.state_from_ned_fields(*r)
+    return state_as_received(np.asarray(x, dtype=float))
+
+
+# HIL_ACTUATOR_CONTROLS carries a pitch as a float32 normalised by the pitch limits; the
+# plant refuses a command beyond them by more than this (decode_command)
+MAX_ABS_NORMALIZED = 1.0 + 1e-6
+
+
+@njit
+def pitches_as_received(u: FloatArray, lo: FloatArray, hi: FloatArray, held: FloatArray) -> bool:
+    """What the plant holds when the autopilot sends pitches ``u`` on the sim link
+    (:meth:`SimLink.send_pitches` -> :func:`decode_command` -> ``accept_pitches``): each
+    normalised by the limits [lo, hi] (servo_map.to_normalized), rounded to the float32 of
+    HIL_ACTUATOR_CONTROLS.controls, mapped back (servo_map.from_normalized, the same
+    operations in the same order) and clipped into ``held``. False, ``held`` kept, for a
+    command the plant refuses (not finite, or beyond the limits)."""
+    n = np.empty(u.shape[0])
+    for i in range(u.shape[0]):
+        n[i] = np.float32(2.0 * (u[i] - lo[i]) / (hi[i] - lo[i]) - 1.0)
+        if not math.isfinite(n[i]) or abs(n[i]) > MAX_ABS_NORMALIZED:
+            return False
+    for i in range(u.shape[0]):
+        held[i] = min(max(lo[i] + (n[i] + 1.0) * 0.5 * (hi[i] - lo[i]), lo[i]), hi[i])
+    return True
 
 
 def receive(link: MavlinkUdp, codec: SimCodec, timeout_s: float = 0.0, spin_s: float = 0.0) -> list[Decoded]:
@@ -243,7 +298,7 @@ def decode_command(
         return None
     msg: Any = message
     n = np.array(msg.controls[:N_PITCH], dtype=float)
-    if not np.all(np.isfinite(n)) or np.any(np.abs(n) > 1.0 + 1e-6):
+    if not np.all(np.isfinite(n)) or np.any(np.abs(n) > MAX_ABS_NORMALIZED):
         return None
     return int(msg.time_usec), servo_map.as_map(limits).from_normalized(n)
 
