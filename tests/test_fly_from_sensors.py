@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from autopilot.scenario import Scenario
+from heli_common.mavlink.sim_protocol import pitches_as_received
 from heli_common.measurements import NEW_GPS, OUT_GPS_POS
 from heli_common.sensors import Gps, Imu, Sensors
 from heli_common.world import World, with_sim_param
@@ -77,7 +78,10 @@ def test_the_plant_measures_what_the_compiled_loop_measures(paper: Scenario) -> 
     for i in range(rec.t_s.size - 1):
         if plant.sensing.mask & NEW_GPS:
             fixes.append((i, plant.sensing.meas[OUT_GPS_POS : OUT_GPS_POS + 3].copy()))
-        plant.set_pitches(rec.pitches[i])
+        # the pitches as the sim link delivers them to the plant process (float32, normalised)
+        held = plant.u.copy()
+        assert pitches_as_received(rec.pitches[i], plant.lo, plant.hi, held)
+        plant.set_pitches(held)
         plant.step(0.01)
     assert len(fixes) == 15  # 5 Hz, the first delivered 100 ms after t = 0
     assert rec.est_log is not None
