@@ -17,10 +17,10 @@ from typing import Any, NamedTuple, Protocol
 import numpy as np
 
 from heli_common import frames, servo_map
-from heli_common.mavlink.fast import Decoded, SimCodec, hil_alt_vel
-from heli_common.mavlink.udp import MavlinkUdp, Message, mavlink2
 from heli_common.jit import njit
 from heli_common.layout import Layout
+from heli_common.mavlink.fast import Decoded, SimCodec, hil_alt_vel
+from heli_common.mavlink.udp import MavlinkUdp, Message, mavlink2
 from heli_common.state import EULER, N_PITCH, OMEGA, POS, VEL, FloatArray
 
 
