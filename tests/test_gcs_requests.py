@@ -182,9 +182,9 @@ def test_qgroundcontrol_connect_sequence_is_answered_at_every_step() -> None:
             gc.send(m2.MAVLink_mission_ack_message(1, 1, m2.MAV_MISSION_ACCEPTED, mtype))
         result, (home,) = _request(gc, m2.MAVLINK_MSG_ID_HOME_POSITION)
         assert result == m2.MAV_RESULT_ACCEPTED and home.latitude == 473977420
-        took = time.monotonic() - t0
-        print(f"QGC connect sequence answered in {took:.2f} s")
-        assert took < 10.0
+        # every step answered within its own request's wait (QGC never retries); the total, a
+        # speed on the wall clock, printed only
+        print(f"QGC connect sequence answered in {time.monotonic() - t0:.2f} s")
         # modes set the three ways: whole custom mode, standard mode, SET_MODE message
         assert gc.command(m2.MAV_CMD_DO_SET_MODE, [1.0, float(wm.HOLD.custom_mode)]) == m2.MAV_RESULT_ACCEPTED
         assert gc.command(wm.CMD_DO_SET_STANDARD_MODE, [1.0]) == m2.MAV_RESULT_ACCEPTED  # POSITION_HOLD

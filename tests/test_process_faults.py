@@ -166,9 +166,10 @@ def test_a_vehicle_lost_in_lockstep_ends_the_run_at_once_saying_so(tmp_path: Pat
     far.write_text(text)
     assert "-99000.0" in text
     t0 = time.monotonic()
+    # a launcher that waited would end on its own timeout (120 s: a bound on the wait), saying
+    # "timeout", not "vehicle lost"
     with pytest.raises(DemoError, match="vehicle lost") as err:
-        run_demo(DemoOptions(mode="lockstep", scenario=str(far), out=tmp_path / "run", timeout_s=300,
+        run_demo(DemoOptions(mode="lockstep", scenario=str(far), out=tmp_path / "run", timeout_s=120,
                              via_ground=False, duration_s=90.0))  # fmt: skip
-    took = time.monotonic() - t0
-    print(f"{err.value} after {took:.1f} s")
-    assert took < 120.0 and "plant" in str(err.value)
+    print(f"{err.value} after {time.monotonic() - t0:.1f} s")
+    assert "plant" in str(err.value)
