@@ -57,7 +57,7 @@ def rms(rec: FlightRecord, t0: float, t1: float) -> float:
 
 # RMS 3-D position error over [45, 120] s, pseudo feedforward, by control rate [Hz], as the
 # in-process flight (deterministic: no random input, no clock) measures it
-RMS_PSEUDO_M = {50.0: 0.04087643272, 100.0: 0.04015409621, 400.0: 0.03962897467}
+RMS_PSEUDO_M = {50.0: 0.04087643259, 100.0: 0.04015409608, 400.0: 0.03962897479}
 
 
 def test_paper_pseudo_100hz(paper: Scenario) -> None:
@@ -103,7 +103,7 @@ def test_paper_pseudo_saturates_only_at_start(paper: Scenario) -> None:
 
 def test_paper_exact_100hz(paper: Scenario) -> None:
     rec = run(paper, "exact")
-    assert rms(rec, 45, 120) == pytest.approx(0.003678420, rel=1e-6)  # target: about 0.004; README 0.0037
+    assert rms(rec, 45, 120) == pytest.approx(0.003678417845, rel=1e-6)  # target: about 0.004; README 0.0037
     assert int(np.count_nonzero(rec.saturated)) == 0
     assert rec.pos_err_m[rec.window(40, 45)].max() <= 0.3
     assert np.abs(rec.x[:, PHI]).max() < 0.2
