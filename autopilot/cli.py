@@ -28,7 +28,7 @@ from autopilot.runner import Recorder, Runner, RunnerConfig, TickService
 from autopilot.scenario import Scenario
 from autopilot.tlc.controller import TLController
 from heli_common import cli_args as arg
-from heli_common.defaults import HOME, ports
+from heli_common.defaults import HOME, Exit, ports
 from heli_common.geo import parse_geo_point
 from heli_common.links import ServoOutput
 from heli_common.mavlink.udp import LOOPBACK
@@ -208,7 +208,11 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
             write_flight_tlog(out / "flight.tlog", record, limits, t0_unix_us)
         summary = record.write_summary(out / "summary.json")
         log.info("summary: %s", json.dumps(summary))
-    return 0
+    failed = runner.verdict()
+    if failed is not None:  # what was recorded is on disk; the status says it was no flight
+        log.error("%s", failed)
+        return Exit.FAILURE
+    return Exit.OK
 
 
 if __name__ == "__main__":

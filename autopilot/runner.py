@@ -43,6 +43,10 @@ LOCKSTEP_SPIN_S = 0.002  # poll this long before sleeping (see MavlinkUdp.wait)
 # real time: a gap longer than this between ticks is a stall (the process stopped, the
 # plant went silent), not scheduling jitter, which the skip logic absorbs
 RESUME_GAP_S = 0.25
+# no state from the plant yet: say so after this long, and again every WAIT_REPEAT_S (a
+# loop that does not tick must say why, not sit silent until it is killed)
+WAIT_WARN_S = 5.0
+WAIT_REPEAT_S = 30.0
 
 Euler = tuple[float, float, float]
 
@@ -292,6 +296,30 @@ class Runner:
         self._t_arm_s = 0.0
         self._session = 0
         self.sample: StateSample | None = None  # the state the tick runs on (with any world truth)
+        self._wait0: float | None = None  # when the wait for the plant's first state began
+        self._wait_warned_s = 0.0  # how long the wait had lasted at its last warning
+
+    def verdict(self) -> str | None:
+        """Why the run failed, or None: a loop that ran no tick, or that lost its plant in
+        flight and never heard it again, did not do its job (the command exits non-zero)."""
+        if self.stats.ticks == 0:
+            return ("ran no control tick: no state ever came from the plant (is it running, and "
+                    "sending to this process's sim-link port?)")  # fmt: skip
+        if self.stats.plant_stale and self.flight.armed:
+            return (f"lost the plant in flight at t = {self._last_t_s:.2f} s: it went silent and never "
+                    "came back")  # fmt: skip
+        return None
+
+    def _waiting_for_plant(self, now: float) -> None:
+        """Before the first state: say, in the log, that the loop is waiting and for what."""
+        if self._wait0 is None:
+            self._wait0 = now
+        waited = now - self._wait0
+        due = WAIT_WARN_S if self._wait_warned_s == 0.0 else self._wait_warned_s + WAIT_REPEAT_S
+        if waited >= due:
+            self._wait_warned_s = waited
+            log.warning("no state from the plant in %.0f s: no control tick yet (is the plant running, "
+                        "and sending to this process's sim-link port?)", waited)  # fmt: skip
 
     def service(self, t_s: float, x: FloatArray) -> None:
         """The services' input, between ticks; also run while the plant is quiet."""
@@ -442,6 +470,8 @@ class Runner:
             s = src.latest_state(0.05, spin_s=LOCKSTEP_SPIN_S)
             now = self.clock.monotonic()
             if s is None:
+                if self._last_x is None:
+                    self._waiting_for_plant(now)
                 self._stale(now - last_state > self.cfg.stale_timeout_s)
                 if self._last_x is not None:  # vehicle time stands still; the GCS's does not
                     self._idle(self._last_t_s + (now - last_state))
@@ -487,26 +517,31 @@ class Runner:
             if late >= period:
                 self.stats.overruns += 1
             s = src.latest_state(0.0)
-            if s is not None and latest is not None and s.session != latest.session:
-                self._new_plant_session(s)
-                latest, latest_at = s, wake
-            elif s is not None and (latest is None or s.t_us > latest.t_us):
-                latest, latest_at = s, wake
-            elif latest is not None:
-                self.stats.stale_ticks += 1
             if latest is None:  # the plant has not spoken yet: wait for it, clock not started
-                src.latest_state(0.01)  # keep the socket drained
+                # the first state, from this poll or from the wait, is the one to start on: a
+                # plant waiting for its first command publishes at 20 Hz, and a loop that
+                # dropped the wait's state and polled again found nothing every time round
+                # (a light first tick: it never ticked); one that started on this poll's
+                # state skipped the warm-up, and its cold first tick read as a stall
+                s = s or src.latest_state(0.01)
+                self._waiting_for_plant(self.clock.monotonic())
                 # the schedule starts after the wait: a wait is no deadline missed (it was
                 # counted as four skipped ticks each time round)
                 start = self.clock.monotonic()
                 k = 0
-                s = src.latest_state(0.0)
-                if s is not None:
-                    self.warm_up(s.x)
-                    latest = src.latest_state(0.0) or s  # the plant went on meanwhile
-                    latest_at = start = self.clock.monotonic()
-                    k = 0
-                continue
+                if s is None:
+                    continue
+                self.warm_up(s.x)
+                latest = src.latest_state(0.0) or s  # the plant went on meanwhile
+                latest_at = start = wake = self.clock.monotonic()  # tick 0 now, on time
+                late = 0.0
+            elif s is not None and s.session != latest.session:
+                self._new_plant_session(s)
+                latest, latest_at = s, wake
+            elif s is not None and s.t_us > latest.t_us:
+                latest, latest_at = s, wake
+            else:
+                self.stats.stale_ticks += 1
             self.stats.lateness_s.append(late)
             self._stale(wake - latest_at > self.cfg.stale_timeout_s)
             t_s = k * period

@@ -37,6 +37,24 @@ from heli_plant.servo_inputs import MavlinkServoInput
 
 log = logging.getLogger("heli_plant.server")
 LOCKSTEP_SPIN_S = 0.002  # poll this long before sleeping (see MavlinkUdp.wait)
+WAIT_WARN_S = 5.0  # no command yet: say so after this long, and again every WAIT_REPEAT_S
+WAIT_REPEAT_S = 30.0
+
+
+class WaitingForAutopilot:
+    """Before the first command: say in the log, after WAIT_WARN_S and then every
+    WAIT_REPEAT_S, that the plant is waiting (a loop that does not step says why)."""
+
+    def __init__(self, since: float) -> None:
+        self.since = since
+        self.due_s = WAIT_WARN_S
+
+    def check(self, now: float) -> None:
+        waited = now - self.since
+        if waited >= self.due_s:
+            self.due_s = waited + WAIT_REPEAT_S
+            log.warning("no command from the autopilot in %.0f s: the plant has not stepped (is the "
+                        "autopilot running, and sending to this process's port?)", waited)  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -211,6 +229,7 @@ class PlantServer:
         dt = self.period_us / 1e6
         self._publish()
         sent_at = last_cmd = time.monotonic()
+        waiting = WaitingForAutopilot(sent_at)
         while not stop.is_set() and not self._end_reached():
             applied = False
             for cmd in self.servo_in.receive(self.t_us, min(self.cfg.resend_s, 0.05)):
@@ -231,6 +250,8 @@ class PlantServer:
                 continue
             if now - last_cmd > self.cfg.timeout_s:
                 self._mark_silent(True)
+            if self.stats.commands == 0:
+                waiting.check(now)
             if now - sent_at > self.cfg.resend_s:
                 self._publish()
                 self.stats.resent_states += 1
@@ -241,15 +262,18 @@ class PlantServer:
         dt = self.period_us / 1e6
         # The clock starts with the first command, so a vehicle in the air does not fall
         # while the autopilot is starting; until then the state is published at 20 Hz.
+        waiting = WaitingForAutopilot(time.monotonic())
         while not stop.is_set():
             self._publish()
             cmds = [c for c in self.servo_in.receive(self.t_us, 0.05) if self._in_window(c)]
             if cmds:
                 first = cmds[-1]
                 self._last_cmd_us = first.t_us
+                self.stats.commands += 1
                 if not self._frozen(first.armed):
                     self.plant.set_pitches(first.pitches_rad)
                 break
+            waiting.check(time.monotonic())
         start = time.monotonic()
         last_cmd = start
         k = 0

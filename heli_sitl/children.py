@@ -22,6 +22,8 @@ from collections import deque
 from pathlib import Path
 from typing import IO
 
+from heli_common.port_handoff import HeldPorts
+
 TAIL_LINES = 200  # kept in memory for the failure report
 
 
@@ -44,6 +46,7 @@ class Child:
         log_path: Path | None = None,
         echo: IO[str] | None = None,
         cwd: Path | None = None,
+        handoff: tuple[HeldPorts, tuple[int, ...]] | None = None,
     ) -> None:
         self.name = name
         self.cmd = cmd
@@ -63,7 +66,10 @@ class Child:
             self._log.write(f"# {name}: {one_line}\n# its warnings and errors follow (none: a "
                             "clean run); -v on its command line logs more\n")  # fmt: skip
             self._log.flush()
-        self.proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, preexec_fn=die_with_parent, cwd=cwd)
+        # the ports the launcher holds for this child: inherited, adopted by its bind
+        held, ports = handoff if handoff is not None else (HeldPorts(), ())
+        self.proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, preexec_fn=die_with_parent, cwd=cwd,
+                                     env=held.env(ports), pass_fds=held.fds(ports))  # fmt: skip
         self._reader = threading.Thread(target=self._drain, name=f"drain-{name}", daemon=True)
         self._reader.start()
 
@@ -157,11 +163,13 @@ def describe_exit(returncode: int | None) -> str:
 def spawn(
     cmd: list[str], name: str | None = None, log_path: Path | None = None, echo: bool = False,
     cwd: Path | None = None,
+    handoff: tuple[HeldPorts, tuple[int, ...]] | None = None,
 ) -> Child:
     """Start a child that dies with us and whose stderr is drained (echoed if ``echo``), in
-    ``cwd`` (None: ours)."""
+    ``cwd`` (None: ours); ``handoff``: the held ports it binds, handed down to it
+    (:mod:`heli_common.port_handoff`)."""
     return Child(name or Path(cmd[2] if len(cmd) > 2 else cmd[0]).name, cmd, log_path,
-                 sys.stderr if echo else None, cwd)  # fmt: skip
+                 sys.stderr if echo else None, cwd, handoff)  # fmt: skip
 
 
 def stop_all(children: list[Child]) -> None:

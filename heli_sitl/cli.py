@@ -375,6 +375,10 @@ def _run(args: argparse.Namespace) -> int:
     if stats.lost:
         print(f"heli-sitl: {stats.lost}", file=sys.stderr)
         return Exit.FAILURE
+    if stats.commands == 0:  # it never flew: say why rather than end as a clean run
+        print("heli-sitl: no command ever came from the autopilot: the plant never stepped",
+              file=sys.stderr)  # fmt: skip
+        return Exit.FAILURE
     return 0
 
 

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from heli_common.defaults import ports
-from heli_common.mavlink.udp import free_udp_port
+from heli_common.port_handoff import HeldPorts
 from heli_common.scenario_file import load_vehicle
 from heli_common.world import World
 from heli_sitl.children import Child, describe_exit, spawn, stop_all
@@ -53,8 +53,13 @@ def _cmd(module: str) -> list[str]:
 
 def run_demo(opts: DemoOptions) -> dict[str, object]:
     opts.out.mkdir(parents=True, exist_ok=True)
-    pp = opts.plant_port or free_udp_port()
-    ap = opts.autopilot_port or free_udp_port()
+    with HeldPorts() as held:  # bound here, handed to the children: never probed and freed
+        return _run_demo(opts, held)
+
+
+def _run_demo(opts: DemoOptions, held: HeldPorts) -> dict[str, object]:
+    pp = opts.plant_port or held.new()
+    ap = opts.autopilot_port or held.new()
     common = ["--mode", opts.mode, "--rate-hz", str(opts.rate_hz), "--scenario", opts.scenario]
     if opts.servo_link:
         common += ["--servo-link", opts.servo_link]
@@ -68,7 +73,7 @@ def run_demo(opts: DemoOptions) -> dict[str, object]:
     if opts.world:  # the plant flies it; the autopilot serves its SIM_ parameters
         plant_cmd += ["--world", opts.world]
     ground_cmd: list[str] | None = None
-    gcs_port = free_udp_port()
+    gcs_port, local_gcs, local_api = held.new(), held.new(), held.new()
     if opts.via_ground:
         plant_cmd.append("--hold-until-armed")  # in the air, held until the ground arms
         ground_cmd = _cmd("ground.cli") + [
@@ -78,8 +83,8 @@ def run_demo(opts: DemoOptions) -> dict[str, object]:
     # the GCS link binds free local ports; it still sends to 14550/14540, so a running
     # QGroundControl shows the demo flight
     ap_cmd = _cmd("autopilot.cli") + [*common, "--port", str(ap), "--plant-port", str(pp),
-                                      "--local-gcs-port", str(free_udp_port()),
-                                      "--local-api-port", str(free_udp_port()),
+                                      "--local-gcs-port", str(local_gcs),
+                                      "--local-api-port", str(local_api),
                                       "--out", str(opts.out),
                                       *opts.extra_autopilot_args]  # fmt: skip
     if opts.world:
@@ -91,9 +96,12 @@ def run_demo(opts: DemoOptions) -> dict[str, object]:
         ap_cmd += ["--autostart"]
     procs: list[tuple[str, Child]] = []
     try:
-        for name, cmd in (("plant", plant_cmd), ("autopilot", ap_cmd), ("ground", ground_cmd)):
+        for name, cmd, own in (("plant", plant_cmd, (pp,)), ("autopilot", ap_cmd, (ap, local_gcs, local_api)),
+                               ("ground", ground_cmd, (gcs_port,))):  # fmt: skip
             if cmd is not None:
-                procs.append((name, spawn(cmd, name, opts.out / "logs" / f"{name}.log", echo=True)))
+                procs.append((name, spawn(cmd, name, opts.out / "logs" / f"{name}.log", echo=True,
+                                          handoff=(held, own))))  # fmt: skip
+        held.close()  # each child has its sockets now
         limit = opts.timeout_s or (600.0 if opts.mode == "lockstep" else 400.0)
         deadline = time.monotonic() + limit
         # the flight is over when the ground script has landed (or the autopilot is done)
@@ -148,9 +156,11 @@ class UpOptions:
     rt_priority: int = 0  # real time: both loops under SCHED_FIFO at this priority (0: off)
 
 
-def up_commands(opts: UpOptions) -> list[tuple[str, list[str]]]:
-    pp = opts.plant_port or free_udp_port()
-    ap = opts.autopilot_port or free_udp_port()
+def up_commands(opts: UpOptions, held: HeldPorts) -> list[tuple[str, list[str], tuple[int, ...]]]:
+    """The plant's and the autopilot's command lines, each with the ports ``held`` binds for
+    it (the sim link's, where ``opts`` leaves them 0)."""
+    pp = opts.plant_port or held.new()
+    ap = opts.autopilot_port or held.new()
     # realtime: the plant integrates at twice the control rate, so every tick sees a fresh state
     plant_rate = opts.rate_hz * (2 if opts.mode == "realtime" else 1)
     plant = _cmd("heli_sitl.cli") + [
@@ -169,7 +179,7 @@ def up_commands(opts: UpOptions) -> list[tuple[str, list[str]]]:
         ["--signing-key", opts.signing_key] if opts.signing_key else []) + (
         ["--out", opts.out] if opts.out else []
     ) + list(opts.extra_autopilot_args) + ccpm_args(opts.ccpm)  # fmt: skip
-    return [("plant", plant), ("autopilot", autopilot)]
+    return [("plant", plant, (pp,)), ("autopilot", autopilot, (ap,))]
 
 
 def rt_args(rt_priority: int) -> list[str]:
@@ -185,8 +195,10 @@ def ccpm_args(ccpm: str | None) -> list[str]:
 def serve(opts: UpOptions, stop_after_s: float | None = None) -> None:
     """Start plant and autopilot and keep them serving until Ctrl-C (or ``stop_after_s``)."""
     logs = Path(opts.out) / "logs" if opts.out else None
-    procs = [(name, spawn(cmd, name, logs / f"{name}.log" if logs else None, echo=True))
-             for name, cmd in up_commands(opts)]  # fmt: skip
+    with HeldPorts() as held:  # the children's own copies outlive ours
+        procs = [(name, spawn(cmd, name, logs / f"{name}.log" if logs else None, echo=True,
+                              handoff=(held, own)))
+                 for name, cmd, own in up_commands(opts, held)]  # fmt: skip
     print(
         f"heli-sitl up: the vehicle sends to UDP 127.0.0.1:{opts.gcs_port} (ground stations) from "
         f":{opts.local_gcs_port} and to :{opts.api_port} (API clients) from :{opts.local_api_port}; "

@@ -14,9 +14,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from ports import new_port
 
 from heli_common.ardupilot_json import MAGIC_16, encode_servo_packet
-from heli_common.mavlink.udp import free_udp_port
 from heli_common.scenario_file import load_vehicle
 from heli_common.swashplate import Swashplate
 from heli_plant.ardupilot_backend import ArduPilotBackend
@@ -44,7 +44,7 @@ def _state(data: bytes) -> dict[str, object]:
 
 @pytest.fixture
 def plant_process(tmp_path: Path) -> Iterator[tuple[socket.socket, tuple[str, int], subprocess.Popen[bytes]]]:
-    port = free_udp_port()
+    port = new_port()
     proc = subprocess.Popen(
         [sys.executable, "-m", "heli_sitl.cli", "run", "--backend", "ardupilot-json", "--port", str(port),
          "--duration-s", "2.0", "--out", str(tmp_path), "-v"],
@@ -133,7 +133,7 @@ def test_the_interlock_holds_the_blades_at_zero_pitch() -> None:
     rotor makes no thrust at zero pitch); engaged: they are, as the head reads them."""
     airframe, x0, _ = load_vehicle("paper", on_ground=True)
     swash = Swashplate.load("swashplate/xcell60-h3-120.toml")
-    with ArduPilotJsonLink(free_udp_port()) as link:
+    with ArduPilotJsonLink(new_port()) as link:
         be = ArduPilotBackend(lambda: Plant(airframe, x0, step_s=1.0 / RATE_HZ), swash, link)
         pwm = [1500] * 16
         pwm[7] = RSC_OFF
@@ -164,7 +164,7 @@ def test_channel_8_runs_the_rotor_plant_up_and_winds_it_down() -> None:
     swash = Swashplate.load("swashplate/xcell60-h3-120.toml")
     model = PlantModel.load("gavrilets")
     dt = 1.0 / RATE_HZ
-    with ArduPilotJsonLink(free_udp_port()) as link:
+    with ArduPilotJsonLink(new_port()) as link:
         at_rest = lambda: Plant(airframe, x0, step_s=dt, model=model, rotor_at_rest=True)  # noqa: E731
         be = ArduPilotBackend(at_rest, swash, link)
         p = be.plant

@@ -20,10 +20,10 @@ from typing import Any
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
+from ports import new_port
 from scipy import stats
 
 from heli_common.config import ConfigError
-from heli_common.mavlink.udp import free_udp_port
 from heli_common.threads import SINGLE_THREAD_ENV
 from heli_sitl.campaigns import engine, report
 from heli_sitl.campaigns.run import prepare, run_campaign
@@ -369,7 +369,7 @@ def test_a_real_scheduler_with_two_workers_and_one_killed_mid_way(tmp_path: Path
     still completes, every sample once."""
     f = small_file(tmp_path)
     run_campaign(f, tmp_path / "embedded", workers=2, quiet=True)
-    port = free_udp_port()  # a free TCP port too, on loopback, in practice
+    port = new_port()  # a free TCP port too, on loopback, in practice
     dask = [sys.executable, "-m", "distributed.cli.dask_scheduler"]
     sched = _spawn(
         [*dask, "--host", "127.0.0.1", "--port", str(port), "--dashboard-address", ":0"],

@@ -19,12 +19,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from ports import new_port
 from vehicle import free_ports, spawn_up
 
 from autopilot import cli as autopilot_cli
 from ground import cli as ground_cli
 from ground.plots import read_csv_columns
-from heli_common.mavlink.udp import LOOPBACK, MavlinkUdp, free_udp_port
+from heli_common.mavlink.udp import LOOPBACK, MavlinkUdp
 from heli_sitl import cli as sitl_cli
 from heli_sitl.children import spawn
 
@@ -62,8 +63,8 @@ def test_a_port_that_would_talk_to_itself_is_refused(capsys: pytest.CaptureFixtu
 
 
 def test_a_missing_signing_key_is_a_one_line_error(capsys: pytest.CaptureFixture[str]) -> None:
-    rc = autopilot_cli.main(["--signing-key", "/nonexistent/key", "--port", str(free_udp_port()),
-                             "--plant-port", str(free_udp_port()), "--local-gcs-port", "0",
+    rc = autopilot_cli.main(["--signing-key", "/nonexistent/key", "--port", str(new_port()),
+                             "--plant-port", str(new_port()), "--local-gcs-port", "0",
                              "--local-api-port", "0"])  # fmt: skip
     assert rc == 2
     err = capsys.readouterr().err.strip().splitlines()
@@ -88,7 +89,7 @@ def test_stopping_before_arming_writes_an_empty_record(tmp_path: Path) -> None:
 
 @pytest.mark.slow
 def test_a_killed_autopilot_leaves_its_record_up_to_a_second_before(tmp_path: Path) -> None:
-    pp, ap = free_udp_port(), free_udp_port()
+    pp, ap = new_port(), new_port()
     common = ["--mode", "realtime", "--rate-hz", "100"]
     plant = spawn([sys.executable, "-m", "heli_sitl.cli", "run", *common, "--port", str(pp),
                    "--autopilot-port", str(ap)], "plant")  # fmt: skip

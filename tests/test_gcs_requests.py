@@ -15,13 +15,14 @@ import time
 from pathlib import Path
 
 import pytest
+from ports import new_port
 from test_ground_client import client, gwp, running_vehicle
 
 from autopilot.params_table import SPECS
 from ground.client import GroundClient
 from heli_common.mavlink import mission_items as ms
 from heli_common.mavlink import modes as wm
-from heli_common.mavlink.udp import Message, free_udp_port, mavlink2
+from heli_common.mavlink.udp import Message, mavlink2
 from heli_sitl.children import spawn
 
 m2 = mavlink2
@@ -201,7 +202,7 @@ def test_two_instances_fly_side_by_side_and_a_client_sees_both() -> None:
     """``heli-sitl up --instance 7`` and ``--instance 8`` on one host: every default port + 70
     or + 80, system ids 8 and 9; both send to one ground-station port, as QGroundControl
     listens on one. Each takes the commands addressed to it and ignores the other's."""
-    gcs = free_udp_port()
+    gcs = new_port()
     ups = [spawn([sys.executable, "-m", "heli_sitl.cli", "up", "--instance", str(n), "--gcs-port", str(gcs)],
                  f"up{n}") for n in (7, 8)]  # fmt: skip
     try:

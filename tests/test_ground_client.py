@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from ports import new_port
 from vehicle import free_ports, spawn_up
 
 from autopilot import trajectory_codec as codec
@@ -40,7 +41,7 @@ from heli_common.frames import flip
 from heli_common.geo import GeoPoint, nwu_to_geo
 from heli_common.mavlink import mission_items as ms
 from heli_common.mavlink.mission_items import MissionItem
-from heli_common.mavlink.udp import Message, free_udp_port, mavlink2
+from heli_common.mavlink.udp import Message, mavlink2
 from heli_sitl.children import Child
 
 m2 = mavlink2
@@ -418,7 +419,7 @@ def test_heli_ground_cli_params_upload_and_failures(
     assert cli.main(["upload", str(bad), *port]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err == [f"heli-ground: {bad}:3: command: expected an integer, got '22.5'"]
-    nowhere = ["--gcs-port", str(free_udp_port()), "--connect-timeout-s", "0.5"]
+    nowhere = ["--gcs-port", str(new_port()), "--connect-timeout-s", "0.5"]
     assert cli.main(["params", "get", "TLC_L1_W_X", *nowhere]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "no HEARTBEAT" in err[0]

@@ -18,12 +18,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from ports import new_port
 
 from autopilot.metrics import CSV_HEADER
 from ground.plots import read_csv_columns
 from heli_common.airframe import Airframe
 from heli_common.mavlink.sim_protocol import command_message, state_messages
-from heli_common.mavlink.udp import LOOPBACK, MavlinkUdp, free_udp_port, mavlink2
+from heli_common.mavlink.udp import LOOPBACK, MavlinkUdp, mavlink2
 from heli_common.servo_map import limits_array
 from heli_sitl.children import Child, spawn
 
@@ -56,9 +57,9 @@ def _start(pp: int, ap: int, gcs_port: int, out: Path, duration_s: float) -> tup
                    "--autopilot-port", str(ap), "--rate-hz", "200"], "plant")  # fmt: skip
     autopilot = spawn([sys.executable, "-m", "autopilot.cli", *common, "--port", str(ap),
                        "--plant-port", str(pp), "--autostart", "--out", str(out),
-                       "--gcs-port", str(gcs_port), "--api-port", str(free_udp_port()),
-                       "--local-gcs-port", str(free_udp_port()),
-                       "--local-api-port", str(free_udp_port())], "autopilot")  # fmt: skip
+                       "--gcs-port", str(gcs_port), "--api-port", str(new_port()),
+                       "--local-gcs-port", str(new_port()),
+                       "--local-api-port", str(new_port())], "autopilot")  # fmt: skip
     return plant, autopilot
 
 
@@ -77,7 +78,7 @@ def _pos_err(cols: dict[str, np.ndarray]) -> np.ndarray:
 
 
 def test_hostile_datagrams_and_a_stall_do_not_lose_the_flight(tmp_path: Path) -> None:
-    pp, ap = free_udp_port(), free_udp_port()
+    pp, ap = new_port(), new_port()
     gcs = MavlinkUdp((LOOPBACK, 0), drop_nonfinite=False)
     plant, autopilot = _start(pp, ap, gcs.local[1], tmp_path, 45.0)
     rogue = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
@@ -123,7 +124,7 @@ def test_hostile_datagrams_and_a_stall_do_not_lose_the_flight(tmp_path: Path) ->
 
 
 def test_a_restarted_plant_is_recognised_and_the_vehicle_disarmed(tmp_path: Path) -> None:
-    pp, ap = free_udp_port(), free_udp_port()
+    pp, ap = new_port(), new_port()
     gcs = MavlinkUdp((LOOPBACK, 0), drop_nonfinite=False)
     plant, autopilot = _start(pp, ap, gcs.local[1], tmp_path, 600.0)
     second: Child | None = None

@@ -10,15 +10,18 @@ import subprocess
 import sys
 import time
 from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
+from ports import new_port
 
 from autopilot.scenario import Scenario
 from ground.plots import read_csv_columns
 from heli_common.mavlink.sim_protocol import command_message, state_messages
-from heli_common.mavlink.udp import LOOPBACK, MavlinkUdp, free_udp_port, mavlink2
+from heli_common.mavlink.udp import LOOPBACK, MavlinkUdp, mavlink2
+from heli_common.port_handoff import HeldPorts
 from heli_sitl.children import Child, spawn
 from heli_sitl.closed_loop import SimOptions, simulate
 from heli_sitl.demo import DemoError, DemoOptions, UpOptions, run_demo, up_commands
@@ -98,13 +101,18 @@ def _wait_for(link: MavlinkUdp, kind: str, timeout_s: float) -> object:
 
 @pytest.fixture
 def served() -> Iterator[tuple[UpOptions, list[Child], MavlinkUdp]]:
-    """`heli-sitl up` (real time, on the ground) with every port chosen here, and a GCS socket."""
+    """`heli-sitl up` (real time, on the ground) with every port chosen here, and a GCS socket;
+    the sim link's two ports bound here and handed to the processes, as `up` does."""
     gcs = MavlinkUdp((LOOPBACK, 0), drop_nonfinite=False)
     opts = UpOptions(
-        gcs_port=gcs.local[1], api_port=free_udp_port(), local_gcs_port=free_udp_port(),
-        local_api_port=free_udp_port(), plant_port=free_udp_port(), autopilot_port=free_udp_port(),
+        gcs_port=gcs.local[1], api_port=new_port(), local_gcs_port=new_port(), local_api_port=new_port(),
     )  # fmt: skip
-    procs = [spawn(cmd) for _, cmd in up_commands(opts)]
+    with HeldPorts() as held:
+        commands = up_commands(opts, held)
+        procs = [spawn(cmd, handoff=(held, own)) for _, cmd, own in commands]
+    plant_cmd = commands[0][1]
+    opts = replace(opts, plant_port=int(plant_cmd[plant_cmd.index("--port") + 1]),
+                   autopilot_port=int(plant_cmd[plant_cmd.index("--autopilot-port") + 1]))  # fmt: skip
     try:
         _wait_for(gcs, "HEARTBEAT", 120.0)
         yield opts, procs, gcs
@@ -181,7 +189,7 @@ def _json_from_stderr(p: Child) -> dict[str, object]:
 
 
 def test_silent_links_are_detected_and_the_command_held(tmp_path: Path) -> None:
-    pp, ap = free_udp_port(), free_udp_port()
+    pp, ap = new_port(), new_port()
     gcs = MavlinkUdp((LOOPBACK, 0), drop_nonfinite=False)
     common = ["--mode", "realtime", "--rate-hz", "100", "--duration-s", "8"]
     plant = spawn([sys.executable, "-m", "heli_sitl.cli", "run", *common, "--port", str(pp),
@@ -189,8 +197,8 @@ def test_silent_links_are_detected_and_the_command_held(tmp_path: Path) -> None:
     autopilot = spawn([sys.executable, "-m", "autopilot.cli", *common, "--port", str(ap),
                        "--plant-port", str(pp), "--autostart", "--out", str(tmp_path),
                        "--stale-timeout-s", "0.3", "--gcs-port", str(gcs.local[1]),
-                       "--api-port", str(free_udp_port()), "--local-gcs-port", str(free_udp_port()),
-                       "--local-api-port", str(free_udp_port())])  # fmt: skip
+                       "--api-port", str(new_port()), "--local-gcs-port", str(new_port()),
+                       "--local-api-port", str(new_port())])  # fmt: skip
     try:
         _wait_for(gcs, "LOCAL_POSITION_NED", 120.0)  # flying (after a cold compile, too)
         time.sleep(1.0)

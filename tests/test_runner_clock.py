@@ -314,3 +314,56 @@ def test_the_tick_timer_times_the_collector_inside_a_tick() -> None:
     assert s["worst_ticks"] == [pytest.approx({"t_s": 0.5, "total_ms": 3.0, "gc_ms": 1.0, "navigate_ms": 0.0,
                                                "control_ms": 3.0, "record_ms": 0.0, "send_ms": 0.0,
                                                "services_ms": 0.0, "flush_ms": 0.0})]  # fmt: skip
+
+
+class WaitingPlant(FakePlant):
+    """A plant waiting for its first command publishes at 20 Hz: a poll (no timeout) then
+    finds nothing, a wait finds the next publication. Once commanded it flies as FakePlant.
+    ``never``: it never speaks, and stops the loop after ``never`` fake seconds."""
+
+    def __init__(self, clock: FakeClock, servos: list[Sent], stop: threading.Event,
+                 never: float | None = None) -> None:  # fmt: skip
+        super().__init__(clock)
+        self.servos, self.stop, self.never = servos, stop, never
+
+    def latest_state(self, timeout_s: float = 0.0, spin_s: float = 0.0) -> StateSample | None:
+        if self.never is not None:
+            self.clock.advance(timeout_s)
+            if self.clock.now - T0 >= self.never:
+                self.stop.set()
+            return None
+        if self.servos:
+            return super().latest_state(timeout_s, spin_s)
+        if timeout_s <= 0.0:
+            return None
+        self.clock.advance(min(timeout_s, 0.005))  # the next 20 Hz publication, within the wait
+        return StateSample(0, np.zeros(12))
+
+
+def test_a_plant_that_publishes_only_between_polls_is_flown(paper: Scenario) -> None:
+    """The state the wait for the plant returns is the one the loop starts on (it was dropped,
+    and the poll after the wait found nothing, every time round: a user's controller never
+    flew in real time); the compiled code is warmed up once, before the first tick."""
+    n = 20
+    b = _bench(paper, n)
+    b.runner.state_in = WaitingPlant(b.clock, b.servos.sent, b.stop)
+    warm: list[int] = []
+    b.runner.warm_up = lambda x: warm.append(1)  # type: ignore[method-assign]
+    stats = b.run()
+    assert stats.ticks == n and len(warm) == 1
+    assert stats.resumes == 0 and stats.skipped_ticks == 0
+    assert b.runner.verdict() is None
+
+
+def test_a_loop_that_never_ticks_says_why(paper: Scenario, caplog: pytest.LogCaptureFixture) -> None:
+    """No state ever: a warning at 5 s and again 30 s later, and a verdict (the command exits
+    non-zero with it), never "a clean run"."""
+    b = _bench(paper, 1)
+    b.runner.state_in = WaitingPlant(b.clock, b.servos.sent, b.stop, never=40.0)
+    with caplog.at_level("WARNING", logger="autopilot.runner"):
+        stats = b.run()
+    assert stats.ticks == 0
+    waits = [r.getMessage() for r in caplog.records if "no state from the plant" in r.getMessage()]
+    assert [w.split(" s:")[0] for w in waits] == [f"no state from the plant in {s}" for s in (5, 35)]
+    verdict = b.runner.verdict()
+    assert verdict is not None and verdict.startswith("ran no control tick")

@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from ports import new_port
 
 from autopilot.estimation.config import EstimatorConfig
 from autopilot.scenario import Scenario
@@ -94,19 +95,19 @@ def test_a_live_sim_wind_change_reaches_the_plant_and_the_log(tmp_path: Path) ->
     import time
 
     from ground.client import GroundClient
-    from heli_common.mavlink.udp import TlogWriter, free_udp_port
+    from heli_common.mavlink.udp import TlogWriter
 
     scenario = tmp_path / "scenario_hover.toml"
     configs = Path(__file__).resolve().parent.parent / "configs"
     scenario.write_text(HOVER_SCENARIO.replace('"xcell60.toml"', f'"{configs / "xcell60.toml"}"')
                         .replace('"gains_paper.toml"', f'"{configs / "gains_paper.toml"}"'))  # fmt: skip
-    gcs_port = free_udp_port()
+    gcs_port = new_port()
     result: dict[str, object] = {}
 
     def fly() -> None:
         result["summary"] = run_demo(DemoOptions(
             mode="realtime", scenario=str(scenario), out=tmp_path / "out", via_ground=False, world="breezy",
-            extra_autopilot_args=("--gcs-port", str(gcs_port), "--api-port", str(free_udp_port())),
+            extra_autopilot_args=("--gcs-port", str(gcs_port), "--api-port", str(new_port())),
         ))  # fmt: skip
 
     flight = threading.Thread(target=fly)
@@ -193,20 +194,19 @@ def test_gps_loss_over_the_ground_station_holds_then_lands(tmp_path: Path) -> No
     import time
 
     from ground.client import GroundClient
-    from heli_common.mavlink.udp import free_udp_port
 
     scenario = tmp_path / "scenario_hover.toml"
     configs = Path(__file__).resolve().parent.parent / "configs"
     text = HOVER_SCENARIO.replace("14.0", "32.0").replace("10.0]", "5.0]")
     scenario.write_text(text.replace('"xcell60.toml"', f'"{configs / "xcell60.toml"}"')
                         .replace('"gains_paper.toml"', f'"{configs / "gains_paper.toml"}"'))  # fmt: skip
-    gcs_port = free_udp_port()
+    gcs_port = new_port()
 
     def fly() -> None:
         run_demo(DemoOptions(
             mode="realtime", scenario=str(scenario), out=tmp_path / "out", via_ground=False,
             world="gps-typical",
-            extra_autopilot_args=("--gcs-port", str(gcs_port), "--api-port", str(free_udp_port())),
+            extra_autopilot_args=("--gcs-port", str(gcs_port), "--api-port", str(new_port())),
         ))  # fmt: skip
 
     flight = threading.Thread(target=fly)

@@ -1,11 +1,12 @@
-"""Start `heli-sitl up` for a test, every port its own and free (tests run side by side)."""
+"""Start `heli-sitl up` for a test, every port its own (tests run side by side: tests/ports.py)."""
 
 from __future__ import annotations
 
 import sys
 from typing import NamedTuple
 
-from heli_common.mavlink.udp import free_udp_port
+from ports import new_port
+
 from heli_sitl.children import Child, spawn
 
 
@@ -17,12 +18,7 @@ class UpPorts(NamedTuple):
 
 
 def free_ports() -> UpPorts:
-    ports: list[int] = []
-    while len(ports) < 4:
-        p = free_udp_port()
-        if p not in ports:
-            ports.append(p)
-    return UpPorts(*ports)
+    return UpPorts(new_port(), new_port(), new_port(), new_port())
 
 
 def spawn_up(ports: UpPorts, *extra: str) -> Child:

@@ -25,10 +25,11 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import development as mavlink2
 
 from heli_common.closing import Closing
+from heli_common.port_handoff import adopt
 
 __all__ = [
     "LOOPBACK", "Address", "MavlinkUdp", "Message", "PortBusyError", "TlogWriter",
-    "addressed_to", "free_udp_port", "mavlink2",
+    "addressed_to", "mavlink2",
 ]  # fmt: skip
 
 Address = tuple[str, int]
@@ -47,12 +48,6 @@ class Message(Protocol):
     def pack(self, mav: Any) -> bytes: ...
     def __getattr__(self, name: str) -> Any: ...
 LOOPBACK = "127.0.0.1"
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind((LOOPBACK, 0))
-        return int(s.getsockname()[1])
 
 
 class PortBusyError(OSError):
@@ -86,17 +81,20 @@ def is_loopback(host: str) -> bool:
 
 def bind_udp(local: Address, rcvbuf_bytes: int | None = None) -> socket.socket:
     """A non-blocking UDP socket bound to ``local``; :class:`PortBusyError` if the port is
-    taken (the socket closed), any other OSError as it is."""
-    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    if rcvbuf_bytes is not None:
+    taken (the socket closed), any other OSError as it is. A socket the launcher bound for
+    ``local`` and handed down (:mod:`heli_common.port_handoff`) is adopted instead."""
+    sock = adopt(local)
+    if sock is None:
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            sock.bind(local)
+        except OSError as exc:
+            sock.close()
+            if exc.errno == errno.EADDRINUSE:
+                raise PortBusyError(exc.errno, f"UDP {local[0]}:{local[1]} is busy") from exc
+            raise
+    if rcvbuf_bytes is not None:  # takes effect after bind too (the queue's limit)
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, rcvbuf_bytes)
-    try:
-        sock.bind(local)
-    except OSError as exc:
-        sock.close()
-        if exc.errno == errno.EADDRINUSE:
-            raise PortBusyError(exc.errno, f"UDP {local[0]}:{local[1]} is busy") from exc
-        raise
     sock.setblocking(False)
     return sock
 
