@@ -11,6 +11,19 @@ import time
 import numpy as np
 
 
+class _Hold:
+    """The smallest user controller: zero pitch (only its path through the loop matters)."""
+
+    def __init__(self, airframe: object, rate_hz: float) -> None:
+        pass
+
+    def update(self, t_s: float, state: np.ndarray, reference: np.ndarray) -> np.ndarray:
+        return np.zeros(4)
+
+    def reset(self) -> None:
+        pass
+
+
 def main() -> None:
     t0 = time.perf_counter()
     from autopilot.scenario import Scenario
@@ -45,6 +58,14 @@ def main() -> None:
     ref = sc.trajectory.sample(np.zeros(1))[0]
     for kind in CONTROLLERS:
         build_controller(kind, sc.airframe, sc.gains, 100.0).update(0.0, x, ref)
+    # a user's controller (Python, called tick by tick) and the flight from sensors with
+    # the navigation filter: their compiled paths differ from the built-in flight's
+    from autopilot.estimation.config import EstimatorConfig
+    from heli_common.world import World
+
+    simulate(sc, SimOptions(duration_s=0.1, controller=_Hold))
+    simulate(sc, SimOptions(duration_s=0.1, world=World.load("noisy"), estimator=EstimatorConfig.load("ins")))
+    simulate(sc, SimOptions(duration_s=0.1, world=World.load("everything")))
     print(f"heli_sitl.warmup: compiled code ready in {time.perf_counter() - t0:.1f} s")
 
 
