@@ -68,14 +68,20 @@ def test_lockstep_reproduces_the_in_process_flight(tmp_path: Path, in_process) -
 def test_realtime_100hz_tracks_the_paper(tmp_path: Path) -> None:
     """Real time at 100 Hz through the slope break at 40 s and 20 s of the circle (the whole
     120 s flies in lockstep above; 60 s of wall clock here keep the suite short): the same
-    figures as the in-process flight of the same length, within 20 %."""
+    figures as the in-process flight of the same length, within 20 % (measured alone: RMS
+    0.0433 m against 0.0431 m). Both loops under SCHED_FIFO (`--rt-priority`, as a user on a
+    loaded machine would run them; the default policy where not permitted): beside the
+    suite's lockstep flights, which spin on both cores, the default policy flew 0.052 and
+    0.056 m in two fresh-clone suites."""
     summary = run_demo(
         DemoOptions(mode="realtime", rate_hz=100.0, out=tmp_path, timeout_s=400, via_ground=False,
-                    duration_s=60.0)
+                    duration_s=60.0, rt_priority=10)
     )  # fmt: skip
     ref = simulate(Scenario.load("paper"), SimOptions(duration_s=60.0)).summary()
     rms, rms_ref = summary["rms_pos_err_m"]["45-60"], ref["rms_pos_err_m"]["45-60"]  # type: ignore[index]
     jump, jump_ref = summary["max_pos_err_40_45_m"], ref["max_pos_err_40_45_m"]
+    print(f"real time 100 Hz: RMS [45,60] {rms:.4f} m, in-process {rms_ref:.4f} m; max [40,45] {jump:.3f} m, "
+          f"in-process {jump_ref:.3f} m")  # fmt: skip
     assert rms <= 1.2 * rms_ref, f"RMS [45,60] {rms:.4f} vs {rms_ref:.4f} in-process"
     assert jump <= 1.2 * jump_ref, f"max [40,45] {jump:.3f} vs {jump_ref:.3f} in-process"  # type: ignore[operator]
     loop = summary["loop"]

@@ -28,7 +28,8 @@ def test_a_user_class_flies_in_real_time_over_the_ground_station(tmp_path: Path)
     traj.write_text("t,x,y,z\n" + "".join(f"{t},{0.5 * t},0,0\n" for t in range(15)))
     track = tmp_path / "track.csv"
     ports = free_ports()
-    up = spawn_up(ports, "--controller", LQR, "--out", str(tmp_path / "up"))
+    # both loops under SCHED_FIFO where permitted: the suite's lockstep flights spin beside it
+    up = spawn_up(ports, "--controller", LQR, "--out", str(tmp_path / "up"), "--rt-priority", "10")
     try:
         fly = subprocess.run(
             [sys.executable, "-m", "ground.cli", "fly", "--guided", str(traj), "--gcs-port", str(ports.gcs),
