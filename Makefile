@@ -31,9 +31,9 @@ test: lint
 	# (tests/conftest.py); the ten slowest tests printed at the end
 	$(BIN)/pytest -q -n auto --maxprocesses 4 --dist loadfile --durations 10
 
-# prints the table and writes it into README.md's performance section (nothing copied by hand)
+# prints the table and writes it into docs/performance.md between its markers (nothing copied by hand)
 bench: $(STAMP)
-	$(BIN)/python -m benchmarks --readme README.md
+	$(BIN)/python -m benchmarks --table docs/performance.md
 
 clean:
 	rm -rf $(VENV) out .pytest_cache .mypy_cache .ruff_cache

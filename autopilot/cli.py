@@ -12,12 +12,12 @@ from pathlib import Path
 
 import numpy as np
 
-from autopilot.controllers import CONTROLLER_HELP, FlyingController, build_controller, controller_arg
+from autopilot.controller_names import CONTROLLER_HELP
+from autopilot.controllers import FlyingController, build_controller, controller_arg
 from autopilot.estimation.config import EstimatorConfig
 from autopilot.flight.commands import Arm, FlyTrajectory
 from autopilot.flight.manager import FlightConfig, FlightManager
 from autopilot.flight_log import write_flight_tlog
-from autopilot.links.can_servo import CanServoOutput, CanServoSender
 from autopilot.links.mavlink_gcs import GcsConfig, GcsService
 from autopilot.links.mavlink_sim import SimLink
 from autopilot.links.world_sync import WorldSync
@@ -167,12 +167,16 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
     ccpm = servos if not isinstance(servos, np.ndarray) else None
     gcs = None if args.no_gcs else make_gcs(args, sc, ctrl, manager, limits, world, pid_gains, ccpm)
     can = None
-    if servo.link == "can":
+    can_out: ServoOutput | None = None
+    if servo.link == "can":  # imported here: python-can and dronecan's DSDL cost 0.3 s to load
+        from autopilot.links.can_servo import CanServoOutput, CanServoSender
+
         can = CanServoSender(servo.can_bus, node_id=args.can_node_id or servo.node_id,
                              actuator_ids=servo.actuator_ids)  # fmt: skip
+        can_out = CanServoOutput(can)
     try:
         with SimLink((LOOPBACK, args.port), (LOOPBACK, args.plant_port), servos, manager.cfg.home) as sim:
-            servo_out: ServoOutput = CanServoOutput(can) if can is not None else sim
+            servo_out: ServoOutput = can_out if can_out is not None else sim
             services: list[TickService] = [gcs, WorldSync(gcs.params, sim.udp)] if gcs else []
             runner = Runner(ctrl, manager, sim, servo_out, cfg, services, recorder, estimator)
             if gcs is not None:

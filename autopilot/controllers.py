@@ -9,18 +9,16 @@ from __future__ import annotations
 from typing import Any
 
 from autopilot.control import KernelController
+from autopilot.controller_names import BUILT_IN
 from autopilot.pid.controller import PIDController
 from autopilot.pid.gains import PidGains, default_pid_gains
 from autopilot.tlc.controller import Feedforward, TLController
 from autopilot.tlc.gains import Gains
-from autopilot.user_controller import BUILT_IN, UserController, is_user_spec, normalise_spec
+from autopilot.user_controller import UserController, is_user_spec, normalise_spec
 from heli_common.airframe import Airframe
 from heli_common.config import ConfigError
 
 CONTROLLERS = BUILT_IN
-CONTROLLER_HELP = ("tlc (the paper's TLC), pid (the cascaded PID baseline, configs/gains_pid.toml), "
-                   "or your own class as package.module:Class or path/to/file.py:Class "
-                   "(docs/controllers.md)")  # fmt: skip
 
 FlyingController = KernelController[Any] | UserController
 

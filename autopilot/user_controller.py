@@ -45,6 +45,7 @@ from typing import Any, ClassVar, Protocol, runtime_checkable
 import numpy as np
 
 from autopilot.control import BAD_INPUT, BAD_OUTPUT, D_SAT_MASK, D_STATUS, N_DIAG, OK
+from autopilot.controller_names import BUILT_IN
 from autopilot.reference import N_REF, REF_POS
 from heli_common.airframe import Airframe, PitchLimits
 from heli_common.config import ConfigError
@@ -52,7 +53,6 @@ from heli_common.state import N_PITCH, N_STATE, FloatArray
 
 log = logging.getLogger(__name__)
 
-BUILT_IN = ("tlc", "pid")
 USER = "user"  # the kind of every controller loaded from a "module:Class" string
 
 

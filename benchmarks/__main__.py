@@ -2,6 +2,8 @@
 
 Exit status 0 always (the table is a report; the ``ok`` column flags a missed target).
 ``python -m benchmarks plant`` runs only the groups whose title contains "plant".
+``python -m benchmarks --table docs/performance.md`` (``make bench``) also writes the table
+into that file, between its markers.
 """
 
 from __future__ import annotations
@@ -55,8 +57,8 @@ def table(groups: list[tuple[str, list[Row]]]) -> str:
     return "\n".join([render(header), sep, *(render(line) for line in lines)])
 
 
-README_BEGIN = "<!-- make bench: begin -->"
-README_END = "<!-- make bench: end -->"
+TABLE_BEGIN = "<!-- make bench: begin -->"
+TABLE_END = "<!-- make bench: end -->"
 
 
 def machine() -> str:
@@ -73,19 +75,20 @@ def machine() -> str:
             f"Python {platform.python_version()}")  # fmt: skip
 
 
-def readme_section(body: str) -> str:
-    """The README's performance table as this run printed it, between the markers."""
+def table_section(body: str) -> str:
+    """The performance table as this run printed it, between the markers."""
     today = datetime.date.today().isoformat()
-    return (f"{README_BEGIN}\nAs `make bench` printed it on {today}, on {machine()}. Every floor\n"
-            f"is measured in the same run as the figure divided by it.\n\n{body}\n{README_END}")  # fmt: skip
+    return (f"{TABLE_BEGIN}\nAs `make bench` printed it on {today}, on {machine()}. Every floor\n"
+            f"is measured in the same run as the figure divided by it.\n\n{body}\n{TABLE_END}")  # fmt: skip
 
 
-def write_readme(path: Path, body: str) -> None:
+def write_table(path: Path, body: str) -> None:
+    """Replace the section between the markers of ``path`` (and nothing else) by this run's table."""
     text = path.read_text()
-    pattern = re.compile(re.escape(README_BEGIN) + ".*?" + re.escape(README_END), re.DOTALL)
+    pattern = re.compile(re.escape(TABLE_BEGIN) + ".*?" + re.escape(TABLE_END), re.DOTALL)
     if not pattern.search(text):
-        raise ValueError(f"{path}: no {README_BEGIN} ... {README_END} section to replace")
-    path.write_text(pattern.sub(lambda _: readme_section(body), text, count=1))
+        raise ValueError(f"{path}: no {TABLE_BEGIN} ... {TABLE_END} section to replace")
+    path.write_text(pattern.sub(lambda _: table_section(body), text, count=1))
 
 
 def parse(argv: list[str]) -> argparse.Namespace:
@@ -96,9 +99,9 @@ def parse(argv: list[str]) -> argparse.Namespace:
     )  # fmt: skip
     p.add_argument("groups", nargs="*", metavar="GROUP",
                    help="run only the groups whose title contains one of these words (default: all)")
-    p.add_argument("--readme", type=Path, metavar="FILE",
-                   help="also put the table into FILE between the markers "
-                        f"'{README_BEGIN}' and '{README_END}' (every group must run)")
+    p.add_argument("--table", type=Path, metavar="FILE",
+                   help="also put the table into FILE (make bench: docs/performance.md) between the "
+                        f"markers '{TABLE_BEGIN}' and '{TABLE_END}' (every group must run)")
     return p.parse_args(argv)
 
 
@@ -113,12 +116,15 @@ def main(argv: list[str]) -> int:
         print(f"python -m benchmarks: no group matches {', '.join(unknown)}; groups: {', '.join(known)}",
               file=sys.stderr)  # fmt: skip
         return 2
-    if args.readme is not None and wanted:
-        print("python -m benchmarks: --readme needs every group (a partial table would drop rows)",
+    if args.table is not None and wanted:
+        print("python -m benchmarks: --table needs every group (a partial table would drop rows)",
               file=sys.stderr)  # fmt: skip
         return 2
-    if args.readme is not None and README_BEGIN not in args.readme.read_text():
-        print(f"python -m benchmarks: {args.readme} has no '{README_BEGIN}' section", file=sys.stderr)
+    if args.table is not None and not args.table.is_file():
+        print(f"python -m benchmarks: {args.table}: no such file", file=sys.stderr)
+        return 2
+    if args.table is not None and TABLE_BEGIN not in args.table.read_text():
+        print(f"python -m benchmarks: {args.table} has no '{TABLE_BEGIN}' section", file=sys.stderr)
         return 2
     groups: list[tuple[str, list[Row]]] = []
     t0 = time.perf_counter()
@@ -134,9 +140,9 @@ def main(argv: list[str]) -> int:
     body = table(groups)
     print(body)
     print(f"\n(total {time.perf_counter() - t0:.1f} s, including numba load/compile; {machine()})")
-    if args.readme is not None:
-        write_readme(args.readme, body)
-        print(f"wrote the table into {args.readme}")
+    if args.table is not None:
+        write_table(args.table, body)
+        print(f"wrote the table into {args.table}")
     return 0
 
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 from heli_common.links import ServoCommand
 from heli_common.mavlink.fast import HilActuatorControls, ParamSet, SimCodec
@@ -15,7 +16,9 @@ from heli_common.mavlink.sim_protocol import MAV_MODE_FLAG_SAFETY_ARMED, decode_
 from heli_common.mavlink.udp import MavlinkUdp
 from heli_common.servo_map import ServoMap
 from heli_common.state import FloatArray
-from heli_plant.can_endpoint import CanServoEndpoint
+
+if TYPE_CHECKING:  # python-can and dronecan's DSDL cost a plant on MAVLink 0.3 s to import
+    from heli_plant.can_endpoint import CanServoEndpoint
 
 # the endpoint's counts of whole commands it refused
 REFUSAL_KEYS = ("missing_actuator", "duplicate_actuator", "wrong_command_type", "nonfinite", "out_of_limits")

@@ -501,7 +501,7 @@ def rms_line(m: FlightMetrics) -> str:
 
 
 def add_controller_args(p: argparse.ArgumentParser) -> None:
-    from autopilot.controllers import CONTROLLER_HELP
+    from autopilot.controller_names import CONTROLLER_HELP
 
     p.add_argument("--controller", type=controller_arg, default="tlc", metavar="NAME", help=CONTROLLER_HELP)
     p.add_argument("--pid-gains", default=None, metavar="FILE", help="PID gains (TOML) for --controller pid")

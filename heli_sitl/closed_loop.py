@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from autopilot.controller_names import BUILT_IN
 from autopilot.estimation.config import EstimatorConfig
 from autopilot.estimation.log import N_EST_LOG
 from autopilot.estimation.nav import make_nav_params, nav_init, nav_log, nav_state_size, nav_tick, nav_truth
@@ -36,7 +37,7 @@ from autopilot.tlc.controller import (
     TLController,
     tlc_kernel,
 )
-from autopilot.user_controller import BUILT_IN, UserController, is_user_spec
+from autopilot.user_controller import UserController, is_user_spec
 from heli_common.airframe import PlantConstants
 from heli_common.jit import njit
 from heli_common.mavlink.sim_protocol import as_received, pitches_as_received, state_as_received

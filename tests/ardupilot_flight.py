@@ -149,6 +149,11 @@ def main(out: Path, plant: str) -> int:
         mavproxy.stdin.flush()
         wait_sim(15.0)  # hover
         t_hover_end = sim_time(out)
+        # asked again: MAVProxy's status lists only the messages it has received, and on a
+        # loaded machine the first EKF_STATUS_REPORT on this link may come after the first ask
+        mavproxy.stdin.write("status EKF_STATUS_REPORT\n")
+        mavproxy.stdin.flush()
+        wait_sim(1.0)
         mavproxy.stdin.close()  # EOF: MAVProxy ends
         with contextlib.suppress(subprocess.TimeoutExpired):
             mavproxy.wait(10)

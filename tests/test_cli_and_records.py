@@ -135,32 +135,34 @@ def test_the_benchmark_runner_answers_help_and_unknown_groups() -> None:
     assert "Traceback" not in unknown.stderr
 
 
-def test_the_readme_performance_table_is_the_benchmarks_own(tmp_path: Path) -> None:
-    """The README's table is written by `make bench` between its markers: the markers are
-    there, every group in the table is a registered benchmark, and the writer replaces the
-    section whole (nothing else in the file moves)."""
+def test_the_performance_page_table_is_the_benchmarks_own(tmp_path: Path) -> None:
+    """docs/performance.md's table is written by `make bench` between its markers: the markers
+    are there (and no longer in the README), every group in the table is a registered benchmark,
+    and the writer replaces the section whole (nothing else in the file moves)."""
     root = Path(__file__).resolve().parent.parent
     sys.path.insert(0, str(root))
     from benchmarks import MODULES, REGISTRY
-    from benchmarks.__main__ import README_BEGIN, README_END, write_readme
+    from benchmarks.__main__ import TABLE_BEGIN, TABLE_END, write_table
 
     for mod in MODULES:
         importlib.import_module(mod)
-    readme = (root / "README.md").read_text()
-    assert readme.count(README_BEGIN) == 1 and readme.count(README_END) == 1
-    section = readme.split(README_BEGIN, 1)[1].split(README_END, 1)[0]
+    assert "--table docs/performance.md" in (root / "Makefile").read_text()
+    assert TABLE_BEGIN not in (root / "README.md").read_text()
+    page = (root / "docs" / "performance.md").read_text()
+    assert page.count(TABLE_BEGIN) == 1 and page.count(TABLE_END) == 1
+    section = page.split(TABLE_BEGIN, 1)[1].split(TABLE_END, 1)[0]
     titles = {t for t, _ in REGISTRY}
     groups = {line.split("|")[1].strip() for line in section.splitlines() if line.startswith("| ")}
     assert groups - {"group"} <= titles, groups - titles - {"group"}
-    copy = tmp_path / "README.md"
-    copy.write_text("# x\nbefore\n" + README_BEGIN + "\nold\n" + README_END + "\nafter\n")
-    write_readme(copy, "| group | benchmark |\n| plant | step |")
+    copy = tmp_path / "performance.md"
+    copy.write_text("# x\nbefore\n" + TABLE_BEGIN + "\nold\n" + TABLE_END + "\nafter\n")
+    write_table(copy, "| group | benchmark |\n| plant | step |")
     text = copy.read_text()
-    assert text.startswith("# x\nbefore\n" + README_BEGIN) and text.endswith(README_END + "\nafter\n")
+    assert text.startswith("# x\nbefore\n" + TABLE_BEGIN) and text.endswith(TABLE_END + "\nafter\n")
     assert "old" not in text and "| plant | step |" in text and "make bench" in text
     copy.write_text("no markers\n")
     with pytest.raises(ValueError, match="no <!-- make bench: begin -->"):
-        write_readme(copy, "x")
+        write_table(copy, "x")
 
 
 @pytest.mark.parametrize("n", [0, 1, 6, 7, 8, 21, 30])

@@ -34,10 +34,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.stats import chi2
 
 from autopilot.estimation.config import EstimatorConfig
-from autopilot.estimation.gating import M_ACCEPTED, M_NONE, M_PENDING, M_RESET, gate_outcome
+from autopilot.estimation.gating import M_ACCEPTED, M_NONE, M_PENDING, M_RESET, chi2_quantile, gate_outcome
 from autopilot.estimation.log import (
     L_ACCEL_BIAS,
     L_ATT_ERR,
@@ -452,9 +451,9 @@ def make_params(
     k[K_USE_VEL] = 1.0 if config.use_gps_velocity else 0.0
     k[K_USE_BARO] = 1.0 if config.use_baro else 0.0
     k[K_USE_MAG] = 1.0 if c.use_mag else 0.0
-    k[K_GATE_1] = float(chi2.ppf(config.gate_probability, 1))
-    k[K_GATE_3] = float(chi2.ppf(config.gate_probability, 3))
-    k[K_GATE_6] = float(chi2.ppf(config.gate_probability, 6))
+    k[K_GATE_1] = chi2_quantile(config.gate_probability, 1)
+    k[K_GATE_3] = chi2_quantile(config.gate_probability, 3)
+    k[K_GATE_6] = chi2_quantile(config.gate_probability, 6)
     k[K_MAX_REJECTS] = config.max_consecutive_rejects
     k[K_GPS_TIMEOUT] = config.gps_timeout_s
     k[K_R_BARO] = config.baro_sigma_m**2

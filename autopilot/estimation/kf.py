@@ -32,10 +32,9 @@ from collections.abc import Sequence
 from typing import NamedTuple
 
 import numpy as np
-from scipy.stats import chi2
 
 from autopilot.estimation.config import EstimatorConfig
-from autopilot.estimation.gating import M_ACCEPTED, M_NONE, M_PENDING, M_RESET, gate_outcome
+from autopilot.estimation.gating import M_ACCEPTED, M_NONE, M_PENDING, M_RESET, chi2_quantile, gate_outcome
 from autopilot.estimation.log import (
     L_BIAS,
     L_DIVERGED,
@@ -276,9 +275,9 @@ def make_params(config: EstimatorConfig, rate_hz: float) -> FloatArray:
     k[K_R_POS : K_R_POS + N_AXES] = np.square(config.gps_pos_sigma_m)
     k[K_R_VEL : K_R_VEL + N_AXES] = np.square(config.gps_vel_sigma_m_s)
     k[K_USE_VEL] = 1.0 if config.use_gps_velocity else 0.0
-    k[K_GATE_POS] = float(chi2.ppf(config.gate_probability, 3))
-    k[K_GATE_POS_VEL] = float(chi2.ppf(config.gate_probability, 6))
-    k[K_GATE_BARO] = float(chi2.ppf(config.gate_probability, 1))
+    k[K_GATE_POS] = chi2_quantile(config.gate_probability, 3)
+    k[K_GATE_POS_VEL] = chi2_quantile(config.gate_probability, 6)
+    k[K_GATE_BARO] = chi2_quantile(config.gate_probability, 1)
     k[K_MAX_REJECTS] = config.max_consecutive_rejects
     k[K_GPS_TIMEOUT] = config.gps_timeout_s
     k[K_R_BARO] = config.baro_sigma_m**2

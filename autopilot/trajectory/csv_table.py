@@ -46,7 +46,6 @@ from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
-from scipy.interpolate import CubicSpline, PPoly
 from scipy.linalg import solve_banded
 
 from autopilot.reference import ACC_0, N_REF, POS_0, REF_ACC, REF_POS, REF_VEL, VEL_0
@@ -92,6 +91,9 @@ class CsvTrajectory(TimedSamples):
         if acc is not None and vel is None:
             raise ValueError("acceleration samples need velocity samples")
         self._keep_samples(t, pos, yaw_nwu_rad)
+        # imported here: scipy.interpolate costs every process that loads the trajectories 0.3 s
+        from scipy.interpolate import CubicSpline, PPoly
+
         pp: PPoly
         if vel is None:
             pp = CubicSpline(t, pos, axis=0, bc_type="not-a-knot")

@@ -28,7 +28,6 @@ from collections.abc import Sequence
 
 import numpy as np
 import numpy.typing as npt
-from scipy.interpolate import CubicSpline
 
 from autopilot.trajectory.base import Trajectory
 from heli_common.state import FloatArray
@@ -107,6 +106,9 @@ class SampledTrajectory(TimedSamples):
             raise ValueError(f"break_mask must be {n} integers in [0, 7]")
         self._keep_samples(t, pos, yaw_nwu_rad)
         self._mask = mask.astype(np.int64)
+        # imported here: scipy.interpolate costs every process that loads the trajectories 0.3 s
+        from scipy.interpolate import CubicSpline
+
         # Per axis: the piece start times and their splines (split where the mask says).
         self._pieces: list[tuple[FloatArray, list[CubicSpline]]] = []
         for axis in range(N_AXES):
