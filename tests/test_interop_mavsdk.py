@@ -36,6 +36,8 @@ from heli_common.mavlink import mission_items as ms
 
 HOME = GeoPoint(47.397742, 8.545594, 488.0)
 START_S = 60.0
+OFFBOARD_LIMIT_S = 30.0  # wall-clock bound on settling at the offboard setpoint (about 5 s alone)
+SETTLED_M = 0.3  # within this of the setpoint for 2 s: settled
 
 
 @contextmanager
@@ -213,6 +215,7 @@ class Actions:
     took_off_to_m: float = 0.0
     modes: list[Any] = field(default_factory=list)
     offboard_reached_m: float = math.inf
+    offboard_settled: bool = False
     home_dist_after_rtl_m: float = math.inf
     landed_after: bool = False
 
@@ -254,13 +257,26 @@ async def fly_actions(api_port: int, out: Actions) -> None:
         target = PositionNedYaw(2.0, 0.0, -3.0, 0.0)
         await offboard.set_position_ned(target)
         await offboard.start()
-        for _ in range(80):  # 8 s of setpoints at 10 Hz (a 2 m step: the TLC overshoots it,
-            await offboard.set_position_ned(target)  # then settles)
+        # setpoints at 10 Hz until the vehicle has stayed within SETTLED_M of the target for
+        # 2 s (a 2 m step: the TLC overshoots it, then settles). Judged on what the vehicle
+        # reports, not on this client's wall clock: a loaded machine may pause the vehicle's
+        # real-time clock after a stall, and 8 s of the client's time were then too few
+        loop = asyncio.get_running_loop()
+        give_up, inside_since = loop.time() + OFFBOARD_LIMIT_S, None
+        while loop.time() < give_up:
+            await offboard.set_position_ned(target)
             await asyncio.sleep(0.1)
+            pv = await first(tel.subscribe_position_velocity_ned(), 5.0)
+            out.offboard_reached_m = math.dist((pv.position.north_m, pv.position.east_m, pv.position.down_m),
+                                               (2.0, 0.0, -3.0))  # fmt: skip
+            if out.offboard_reached_m >= SETTLED_M:
+                inside_since = None
+            elif inside_since is None:
+                inside_since = loop.time()
+            elif loop.time() - inside_since >= 2.0:
+                out.offboard_settled = True
+                break
         out.modes.append(await mode())
-        pv = await first(tel.subscribe_position_velocity_ned(), 5.0)
-        out.offboard_reached_m = math.dist((pv.position.north_m, pv.position.east_m, pv.position.down_m),
-                                           (2.0, 0.0, -3.0))  # fmt: skip
         await offboard.stop()
         await action.return_to_launch()
         await asyncio.sleep(0.5)
@@ -282,5 +298,5 @@ def test_mavsdk_takeoff_hold_offboard_rtl_and_land() -> None:
           f"from home")  # fmt: skip
     assert abs(out.took_off_to_m - 3.0) < 0.3
     assert out.modes == [FlightMode.HOLD, FlightMode.OFFBOARD, FlightMode.RETURN_TO_LAUNCH]
-    assert out.offboard_reached_m < 0.5
+    assert out.offboard_settled, f"{out.offboard_reached_m:.2f} m off the setpoint after {OFFBOARD_LIMIT_S} s"
     assert out.home_dist_after_rtl_m < 1.0 and out.landed_after
