@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import subprocess
+import sys
 from typing import Any
 
 import numpy as np
@@ -366,3 +368,11 @@ def test_heli_sitl_margins_loops_prints_the_loop_at_a_time_table(capsys: pytest.
     assert "| paper Table 2 | 10 ms + 20 ms | 4 |" in capsys.readouterr().out
     assert main(["margins", "--loops", "--plant", "paper"]) == 2  # a linear plant of its own
     assert "--loops" in capsys.readouterr().err
+
+
+def test_the_module_answers_help_and_refuses_a_missing_gain_file_by_name() -> None:
+    cmd = [sys.executable, "-m", "autopilot.analysis.margins"]
+    helped = subprocess.run([*cmd, "--help"], capture_output=True, text=True, timeout=120)
+    assert helped.returncode == 0 and "servo models" in helped.stdout
+    bad = subprocess.run([*cmd, "no_such_gains.toml"], capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and "no_such_gains.toml" in bad.stderr and "Traceback" not in bad.stderr

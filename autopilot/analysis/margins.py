@@ -655,13 +655,30 @@ def print_table(reports: Sequence[MarginReport], *, merge_channels: bool = True)
     print(format_table(reports, merge_channels=merge_channels))
 
 
-def main() -> None:  # pragma: no cover - a convenience: python -m autopilot.analysis.margins
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m autopilot.analysis.margins [GAINS ...]``: the table for each gain file."""
+    import argparse
     import sys
 
-    paths = sys.argv[1:] or ["gains_paper.toml", "gains_servo_aware.toml"]
-    reports = [loop_margins(Gains.load(p), sv) for p in paths for sv in SERVO_MODELS.values()]
+    from heli_common.config import ConfigError
+
+    p = argparse.ArgumentParser(
+        prog="python -m autopilot.analysis.margins",
+        description="each TLC loop opened alone behind the three servo models: its gain and phase "
+                    "margins (heli-sitl margins --loops prints the same)",
+    )  # fmt: skip
+    defaults = ["gains_paper.toml", "gains_servo_aware.toml"]
+    p.add_argument("gains", nargs="*", metavar="GAINS", default=defaults,
+                   help="gain files or names in configs/ (default: gains_paper.toml gains_servo_aware.toml)")
+    args = p.parse_args(argv)
+    try:
+        reports = [loop_margins(Gains.load(g), sv) for g in args.gains for sv in SERVO_MODELS.values()]
+    except (ConfigError, OSError) as e:
+        print(f"python -m autopilot.analysis.margins: {e}", file=sys.stderr)
+        return 2
     print_table(reports)
+    return 0
 
 
-if __name__ == "__main__":  # pragma: no cover
-    main()
+if __name__ == "__main__":
+    raise SystemExit(main())
