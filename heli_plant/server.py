@@ -148,7 +148,10 @@ class PlantServer:
             active |= ROTOR_TRUTH_CHANNELS
         air = mavlink2.MAVLink_wind_cov_message(self.t_us, n, e, d, nan, nan, nan, nan, nan)
         pitches = mavlink2.MAVLink_actuator_output_status_message(self.t_us, active, servo)
-        return self.link.pack(air) + self.link.pack(pitches)
+        self.link.mav.seq = self.codec.seq  # one sequence on the link: the codec's frames, then these
+        data = self.link.pack(air) + self.link.pack(pitches)
+        self.codec.seq = self.link.mav.seq
+        return data
 
     def _end_reached(self) -> bool:
         """Stepped past the end (the state at t = duration is published and answered), or

@@ -156,6 +156,12 @@ def test_mavproxy_status_params_and_a_flown_waypoint_file(tmp_path: Path) -> Non
         at = mp.send("status")
         for kind in TELEMETRY:
             mp.expect(rf"^\d+: {kind} \{{", 5.0, at)
+        # MAVProxy counts each gap in a link's sequence numbers as lost messages: every one
+        # of ours is numbered in turn (a link that repeated 0 read as 99 % loss)
+        at = mp.send("link")
+        pattern = r"link \S+ \S+ \((\d+) packets, \d+ bytes, [\d.]+s delay, (\d+) lost, ([\d.]+)% loss"
+        link = mp.expect(pattern, 5.0, at)
+        assert int(link.group(1)) > 50 and int(link.group(2)) == 0, link.group(0)
 
         t0 = time.monotonic()
         at = mp.send("param fetch")

@@ -375,7 +375,7 @@ class GcsService:
 
     def _telemetry(self) -> None:
         t = self._t
-        due = []
+        due: list[list[bytes]] = [[] for _ in self.links]  # each link's frames, on its own sequence
         for msg_id, interval in self.intervals_s.items():
             due_t = self.next_due.get(msg_id, 0.0)
             if t >= due_t:
@@ -383,14 +383,16 @@ class GcsService:
                 self.next_due[msg_id] = due_t + interval if t < due_t + interval else t + interval
                 try:
                     msg = self.build(msg_id)
-                    if msg is not None:
-                        self.links[0].pack(msg)  # packing checks every field's range
-                        due.append(msg)
+                    if msg is not None:  # packing checks every field's range (packed once)
+                        frames = [link.pack(msg) for link in self.links]
+                        for out, frame in zip(due, frames, strict=True):
+                            out.append(frame)
                 except Exception:  # one bad message must not stop the vehicle
                     if msg_id not in self._broken:
                         log.exception("telemetry message %d not sent", msg_id)
                     self._broken.add(msg_id)
-        self._send_all(due)
+        for link, frames in zip(self.links, due, strict=True):
+            link.send_packed(frames)
 
     def build(self, msg_id: int) -> Message | None:
         """Build one telemetry message from the latest tick, or None if not available."""
