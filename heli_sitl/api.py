@@ -371,11 +371,13 @@ def campaign(
     out: str | Path | None = None,
     workers: int | None = None,
     quiet: bool = True,
+    figures: bool = True,
 ) -> CampaignResult:
     """Fly a campaign file (or a name in configs/campaigns/) on an embedded Dask cluster;
     ``out`` keeps the rows and figures (a re-run resumes it; None: a fresh temporary
-    directory). ``controller``: "tlc", "pid" or your class as "module:Class" /
-    "file.py:Class" (a name, so the workers can load it).
+    directory; ``figures=False``: no figures, about 2 s of CPU each). ``controller``: "tlc",
+    "pid" or your class as "module:Class" / "file.py:Class" (a name, so the workers can
+    load it).
 
     >>> c = hs.campaign("robustness", samples=4, workers=1)  # doctest: +SKIP
     >>> c.counts.flights, c.counts.failed                   # doctest: +SKIP
@@ -391,7 +393,8 @@ def campaign(
         raise ConfigError("controller: a campaign's workers load the controller by name: give 'tlc', 'pid', "
                           f"'module:Class' or 'file.py:Class', got {controller!r}")  # fmt: skip
     d = Path(out) if out is not None else Path(tempfile.mkdtemp(prefix="heli-campaign-"))
-    summary = run_campaign(spec, d, samples=samples, workers=workers, quiet=quiet, controller=controller)
+    summary = run_campaign(spec, d, samples=samples, workers=workers, quiet=quiet, controller=controller,
+                           figures=figures)  # fmt: skip
     table = pq.read_table(d / "results.parquet")
     return CampaignResult(str(summary["campaign"].get("name", spec)), d, CampaignCounts.of(table), table,
                           summary)  # fmt: skip

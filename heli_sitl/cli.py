@@ -481,7 +481,7 @@ def _campaign(args: argparse.Namespace) -> int:
 
     summary = run_campaign(args.file, Path(args.out), samples=args.samples, workers=args.workers,
                            scheduler=args.scheduler, quiet=args.quiet,
-                           controller=args.controller)  # fmt: skip
+                           controller=args.controller, figures=not args.no_figures)  # fmt: skip
     if args.via == "processes":
         from heli_sitl.campaigns.via_processes import compare
 
@@ -694,6 +694,9 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--controller", type=controller_arg, default=None, metavar="NAME",
                    help="fly every sample with this controller: tlc, pid or package.module:Class / "
                         "file.py:Class (default: the file's, else tlc)")
+    c.add_argument("--no-figures", action="store_true",
+                   help="rows and campaign.json only, no figures (~2 s of CPU each); "
+                        "a re-run over --out draws them")
     c.add_argument("--quiet", action="store_true", help="no progress bar, no table")
     c.set_defaults(func=_campaign)
     return p

@@ -282,7 +282,8 @@ def test_samplers_draw_the_declared_marginals() -> None:
 @pytest.mark.processes
 def test_same_file_same_rows_on_one_and_two_workers(tmp_path: Path) -> None:
     f = small_file(tmp_path)
-    run_campaign(f, tmp_path / "a", workers=1, quiet=True)
+    bare = run_campaign(f, tmp_path / "a", workers=1, quiet=True, figures=False)
+    assert bare["figures"] == [] and not list((tmp_path / "a").glob("*.png"))
     s = run_campaign(f, tmp_path / "b", workers=2, quiet=True)
     a, b = rows(tmp_path / "a"), rows(tmp_path / "b")
     assert [r["sample_id"] for r in a] == list(range(12))
@@ -294,6 +295,10 @@ def test_same_file_same_rows_on_one_and_two_workers(tmp_path: Path) -> None:
     # the same command again: everything is there, nothing flies
     again = run_campaign(f, tmp_path / "b", workers=2, quiet=True)
     assert again["run"]["flown_now"] == 0 and rows(tmp_path / "b") == b
+    # the campaign flown without figures, run again: no flight, and now its figures
+    drawn = run_campaign(f, tmp_path / "a", workers=1, quiet=True)
+    assert drawn["run"]["flown_now"] == 0 and drawn["figures"] == s["figures"] != []
+    assert (tmp_path / "a" / "hist.png").read_bytes() == (tmp_path / "b" / "hist.png").read_bytes()
 
 
 def test_tasks_are_guided_big_first_single_flights_last() -> None:
@@ -368,7 +373,7 @@ def test_a_real_scheduler_with_two_workers_and_one_killed_mid_way(tmp_path: Path
     the embedded run's rows; then one worker is SIGKILLed during a second campaign, which
     still completes, every sample once."""
     f = small_file(tmp_path)
-    run_campaign(f, tmp_path / "embedded", workers=2, quiet=True)
+    run_campaign(f, tmp_path / "embedded", workers=2, quiet=True, figures=False)  # (rows compared)
     port = new_port()  # a free TCP port too, on loopback, in practice
     dask = [sys.executable, "-m", "distributed.cli.dask_scheduler"]
     sched = _spawn(
@@ -394,7 +399,7 @@ def test_a_real_scheduler_with_two_workers_and_one_killed_mid_way(tmp_path: Path
 
         with Client(addr, timeout="60s") as c:  # both workers in before the campaign starts
             c.wait_for_workers(2, timeout=120)
-        s = run_campaign(f, tmp_path / "cluster", scheduler=addr, quiet=True)
+        s = run_campaign(f, tmp_path / "cluster", scheduler=addr, quiet=True, figures=False)
         assert s["run"]["workers"] == 2
         assert rows(tmp_path / "cluster") == rows(tmp_path / "embedded")
         # a bigger campaign in one-flight tasks; kill a worker once the first results are in
@@ -416,6 +421,7 @@ def test_a_real_scheduler_with_two_workers_and_one_killed_mid_way(tmp_path: Path
             "--scheduler",
             addr,
             "--quiet",
+            "--no-figures",
         ]
         camp = _spawn(cmd, tmp_path / "big.log")
         _wait_for_parts(out, 3, camp, 240)
@@ -450,6 +456,7 @@ def test_a_killed_campaign_resumes_without_losing_or_repeating_a_flight(tmp_path
         "--workers",
         "2",
         "--quiet",
+        "--no-figures",
     ]
     camp = _spawn(cmd, tmp_path / "first.log")
     _wait_for_parts(out, 3, camp, 240)
@@ -475,7 +482,7 @@ def test_via_processes_flies_the_in_process_rows_again_over_mavlink(tmp_path: Pa
 
     f = small_file(tmp_path)
     f.write_text(f.read_text().replace("samples = 12", "samples = 2"))
-    run_campaign(f, tmp_path / "out", workers=1, quiet=True)
+    run_campaign(f, tmp_path / "out", workers=1, quiet=True, figures=False)
     res = compare(f, tmp_path / "out", limit=2, quiet=True)
     assert [r["sample_id"] for r in res] == [0, 1]
     for r in res:

@@ -66,13 +66,15 @@ def test_the_lqr_example_flies_in_lockstep_processes_as_in_process(tmp_path: Pat
 def test_the_lqr_example_flies_a_50_flight_campaign(tmp_path: Path) -> None:
     """50 robustness samples (mismatch, wind, servos), each 20 s, flown on Dask workers that
     load the class from its file: none fails (raises); the linear law loses one sample
-    (docs/controllers.md), the other 49 converge within 0.5 m."""
+    (docs/controllers.md), the other 49 converge within 0.5 m. Without its 17 figures (34 s
+    of CPU; test_campaign draws a campaign's figures), which a re-run over the directory
+    then draws without flying again."""
     camp = tmp_path / "lqr.toml"
     text = (ROOT / "configs/campaigns/robustness.toml").read_text()
     camp.write_text(text.replace('samples = 1000', 'samples = 50\nduration_s = 20.0'))
     out = subprocess.run(
         [sys.executable, "-m", "heli_sitl.cli", "campaign", str(camp), "--out", str(tmp_path / "out"),
-         "--controller", LQR, "--workers", "2", "--quiet"],
+         "--controller", LQR, "--workers", "2", "--quiet", "--no-figures"],
         capture_output=True, text=True, timeout=600, cwd=ROOT,
     )  # fmt: skip
     assert out.returncode == 0, out.stderr[-2000:]
@@ -80,6 +82,7 @@ def test_the_lqr_example_flies_a_50_flight_campaign(tmp_path: Path) -> None:
     counts = summary["counts"]
     assert counts["flights"] == 50 and counts["failed"] == 0
     assert counts["diverged"] == 1 and counts["converged"] == 49
+    assert summary["figures"] == [] and not list((tmp_path / "out").glob("*.png"))
 
 
 def test_a_bad_name_is_refused_with_what_is_wrong() -> None:

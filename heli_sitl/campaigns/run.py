@@ -150,6 +150,7 @@ class Figures:
     spec: CampaignSpec
     out: Path
     quiet: bool = False
+    draw: bool = True  # False: rows and campaign.json only (a re-run over ``out`` draws them)
     results: pa.Table | None = None  # the rows, collected while the cluster is up
     written: set[str] = field(default_factory=set)
     errors: dict[str, str] = field(default_factory=dict)  # not drawn: why
@@ -160,7 +161,9 @@ class Figures:
         here as its bytes come in."""
         self.results = engine.collect(self.out, self.spec)
         t0 = time.perf_counter()
-        plan = report.sheets(self.spec)
+        plan = self.plan()
+        if not plan:
+            return
         try:
             for sheet, png in engine.render_figures(client, self.spec, self.results, plan):
                 if isinstance(png, bytes):
@@ -177,7 +180,7 @@ class Figures:
         figures written in the campaign's order of figures."""
         results = self.results if self.results is not None else engine.collect(self.out, self.spec)
         t0 = time.perf_counter()
-        plan = report.sheets(self.spec)
+        plan = self.plan()
         for sheet in plan:
             if sheet.name in self.written:
                 continue
@@ -189,6 +192,9 @@ class Figures:
                 print(f"heli-sitl: figure {sheet.name} not drawn: {exc!r}", file=sys.stderr)
         self.seconds += time.perf_counter() - t0
         return results, [s.name for s in plan if s.name in self.written]
+
+    def plan(self) -> list[report.Sheet]:
+        return report.sheets(self.spec) if self.draw else []
 
     def _say(self, line: str) -> None:
         if not self.quiet:
@@ -203,7 +209,11 @@ def run_campaign(
     scheduler: str | None = None,
     quiet: bool = False,
     controller: str | None = None,
+    figures: bool = True,
 ) -> dict[str, Any]:
+    """Fly every sample of the campaign not yet in ``out`` (a re-run resumes), then write its
+    rows, campaign.json and (unless ``figures`` is False: a thousand-flight campaign's rows
+    without its ~2 s of CPU a figure; a re-run over ``out`` draws them) its figures."""
     t_start = time.perf_counter()
     spec, base, table = prepare(path, samples, controller)
     ident = _identity(spec, table)
@@ -211,7 +221,7 @@ def run_campaign(
     n_workers = workers or os.cpu_count() or 1
     from tqdm import tqdm
 
-    figures = Figures(spec, out, quiet)
+    drawing = Figures(spec, out, quiet, draw=figures)
     with tqdm(
         total=table.shape[0], desc=f"campaign {spec.name}", unit="flight", disable=quiet, smoothing=0.1
     ) as bar:
@@ -221,8 +231,8 @@ def run_campaign(
             bar.set_postfix(failed=failed, refresh=False)
             bar.refresh()
 
-        stats = engine.run(spec, base, table, out, n_workers, scheduler, progress, figures.on_cluster)
-    results, drawn = figures.finish()
+        stats = engine.run(spec, base, table, out, n_workers, scheduler, progress, drawing.on_cluster)
+    results, drawn = drawing.finish()
     wall = time.perf_counter() - t_start  # to the rows and the figures
     duration = spec.duration_s or base.scenario.run.duration_s
     c = CampaignCounts.of(results)
@@ -251,7 +261,7 @@ def run_campaign(
             "cluster_start_s": stats.cluster_start_s,
             "engine_wall_s": stats.wall_s,
             "flying_s": stats.flying_s,
-            "figures_s": figures.seconds,
+            "figures_s": drawing.seconds,
             "total_wall_s": wall,
             "vehicle_s_per_wall_s": throughput,
             "in_worker_flight_rate": rate1,
@@ -267,8 +277,8 @@ def run_campaign(
             first = "rms_45_m" if "rms_45_m" in spec.metrics else sob[0]["metric"]
             text += "\n" + report.format_sobol(sob, first)
     summary["figures"] = drawn
-    if figures.errors:
-        summary["figure_errors"] = figures.errors
+    if drawing.errors:
+        summary["figure_errors"] = drawing.errors
     (out / "campaign.json").write_text(json.dumps(summary, indent=2, default=str) + "\n")
     if not quiet:
         print(text)
@@ -278,7 +288,8 @@ def run_campaign(
                 f"{stats.flights} flights in {stats.flying_s:.1f} s on {workers_used} workers "
                 f"({stats.scheduler}, started in {stats.cluster_start_s:.1f} s): {throughput:,.0f} "
                 f"vehicle-s per wall-s = {eff:.0%} of {workers_used} x a worker's own pace "
-                f"({rate1:,.0f}x); figures {figures.seconds:.1f} s; {wall:.1f} s in all"
+                f"({rate1:,.0f}x); figures {drawing.seconds:.1f} s; {wall:.1f} s in all"
             )
-        print(f"wrote {out / engine.RESULTS}, {out / 'campaign.json'}, figures in {out}")
+        where = f", figures in {out}" if figures else " (no figures: --no-figures)"
+        print(f"wrote {out / engine.RESULTS}, {out / 'campaign.json'}{where}")
     return summary
