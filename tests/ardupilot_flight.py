@@ -2,12 +2,13 @@
 network namespace (tests/test_ardupilot_sitl.py starts it with ``unshare --net``): ArduPilot
 SITL opens TCP 5760-5763 and UDP 9002, which must never reach the host's network.
 
-``python tests/ardupilot_flight.py OUT PLANT`` starts ``heli-sitl up --firmware ardupilot``,
+``python tests/ardupilot_flight.py OUT PLANT [--hover-only]`` starts ``heli-sitl up --firmware ardupilot``,
 connects a ground station (pymavlink, TCP 5760), reads parameters, the mode and the EKF status
 (and so does MAVProxy on TCP 5763 while it flies),
 arms in GUIDED, runs the rotor up (the motor interlock, switched with MAV_CMD_DO_AUX_FUNCTION),
 takes off to 5 m and hovers; then ``heli-ground fly --guided`` (UDP 14550, the firmware's
-SERIAL1) flies the paper's trajectory in GUIDED, lands and disarms. What it saw goes to
+SERIAL1) flies the paper's trajectory in GUIDED, lands and disarms (with ``--hover-only``:
+it lands from the hover). What it saw goes to
 OUT/result.json, the streamed targets to OUT/track.csv; the plant's truth is OUT/plant.csv.
 """
 
@@ -49,7 +50,7 @@ def sim_time(out: Path) -> float:
     return 0.0
 
 
-def main(out: Path, plant: str) -> int:
+def main(out: Path, plant: str, trajectory: bool) -> int:
     if os.readlink("/proc/self/ns/net") == os.environ.get("PARENT_NETNS"):
         print("refusing: not inside a private network namespace", file=sys.stderr)
         return 3
@@ -162,6 +163,14 @@ def main(out: Path, plant: str) -> int:
         mavproxy.wait()
         res["mavproxy"] = (out / "mavproxy.log").read_text(errors="replace")
         res["t_takeoff"], res["t_hover_end"] = t_takeoff, t_hover_end
+        if not trajectory:  # straight down from the hover: LAND, until it disarms itself
+            conn.mav.set_mode_send(1, mavutil.mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, LAND)
+            t_land = sim_time(out)
+            while res.get("armed") and sim_time(out) < t_land + 60.0:
+                wait_sim(1.0)
+            pump(1.0)
+            res["disarmed_after_landing"] = not res.get("armed")
+            return 0
         # the paper's trajectory, streamed by heli-ground over the firmware's SERIAL1; our
         # link keeps pumping in a thread, so the modes and the arming state are still seen
         stop = threading.Event()
@@ -191,4 +200,5 @@ def main(out: Path, plant: str) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main(Path(sys.argv[1]), sys.argv[2] if len(sys.argv) > 2 else "paper"))
+    args = sys.argv[1:]
+    raise SystemExit(main(Path(args[0]), args[1] if len(args) > 1 else "paper", "--hover-only" not in args))

@@ -139,7 +139,7 @@ def fly(
         refs, t, 0, n + 1, n + 1, plant.substeps, xs, us, diags, False, w.air, w.wp, w.ws,
         w.servo_p, w.servo_s, w.dryden, np.zeros((n + 1, 3)), np.zeros((n + 1, N_PITCH)),
         *SensingArrays.off().args(), np.zeros(1), False, PID_OFF.constants, PID_OFF.state.copy(), ROTOR_OFF,
-        np.zeros((1, N_ROTOR + 1)),
+        np.zeros((1, N_ROTOR + 1)), False,  # sim_link off: the model's exact arithmetic
     )  # fmt: skip
     return Flight(xs, us, diags, t, x_next)
 

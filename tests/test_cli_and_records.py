@@ -89,28 +89,40 @@ def test_stopping_before_arming_writes_an_empty_record(tmp_path: Path) -> None:
 
 @pytest.mark.slow
 def test_a_killed_autopilot_leaves_its_record_up_to_a_second_before(tmp_path: Path) -> None:
-    pp, ap = new_port(), new_port()
+    """run.csv is flushed once a second of flight: SIGKILLed after 5 s of flight, the record
+    ends less than 1.5 s of the vehicle's clock before the last telemetry it sent (what a
+    ground station saw of it: ATTITUDE's time_boot_ms)."""
+    pp, ap, gcs_port = new_port(), new_port(), new_port()
     common = ["--mode", "realtime", "--rate-hz", "100"]
     plant = spawn([sys.executable, "-m", "heli_sitl.cli", "run", *common, "--port", str(pp),
                    "--autopilot-port", str(ap)], "plant")  # fmt: skip
-    autopilot = spawn([sys.executable, "-m", "autopilot.cli", *common, "--port", str(ap), "--plant-port",
-                       str(pp), "--autostart", "--out", str(tmp_path), "--no-gcs"], "autopilot")  # fmt: skip
-    try:
-        deadline = time.monotonic() + 120.0
-        csv = tmp_path / "run.csv"
-        while not (csv.exists() and csv.stat().st_size > 2000):  # flying (after a cold compile)
-            assert time.monotonic() < deadline, "no rows"
-            time.sleep(0.2)
-        t0 = time.monotonic()
-        time.sleep(5.0)
-        autopilot.proc.kill()  # SIGKILL: no chance to write anything
-        flown_s = time.monotonic() - t0
-        autopilot.wait(timeout=10)
-    finally:
-        plant.kill()
-        autopilot.kill()
+    with MavlinkUdp((LOOPBACK, gcs_port)) as gcs:  # the ground station the vehicle sends to
+        autopilot = spawn([sys.executable, "-m", "autopilot.cli", *common, "--port", str(ap), "--plant-port",
+                           str(pp), "--autostart", "--out", str(tmp_path), "--gcs-port", str(gcs_port),
+                           "--api-port", str(new_port()), "--local-gcs-port", str(new_port()),
+                           "--local-api-port", str(new_port())], "autopilot")  # fmt: skip
+        try:
+            deadline = time.monotonic() + 120.0  # (a bound on a cold compile, not a measurement)
+            vehicle_s, flying_from_s = -1.0, math.inf
+            while vehicle_s < flying_from_s + 5.0:
+                assert time.monotonic() < deadline and autopilot.proc.poll() is None, "no flight"
+                for m, _ in gcs.recv(0.2):
+                    if m.get_type() == "ATTITUDE":
+                        vehicle_s = max(vehicle_s, m.time_boot_ms / 1e3)
+                csv = tmp_path / "run.csv"
+                if math.isinf(flying_from_s) and csv.exists() and csv.stat().st_size > 2000:
+                    flying_from_s = vehicle_s  # rows flushed: flying
+            autopilot.proc.kill()  # SIGKILL: no chance to write anything
+            for m, _ in gcs.recv(0.5):  # what it sent before it died
+                if m.get_type() == "ATTITUDE":
+                    vehicle_s = max(vehicle_s, m.time_boot_ms / 1e3)
+            autopilot.wait(timeout=10)
+        finally:
+            plant.kill()
+            autopilot.kill()
     cols = read_csv_columns(tmp_path / "run.csv")
-    assert cols["t"][-1] > flown_s - 1.5, f"record ends at {cols['t'][-1]:.2f} s"
+    print(f"record ends at {cols['t'][-1]:.2f} s; the last telemetry at {vehicle_s:.2f} s")
+    assert vehicle_s - 1.5 < cols["t"][-1] <= vehicle_s, f"record ends at {cols['t'][-1]:.2f} s"
     assert np.all(np.diff(cols["t"]) > 0) and np.all(np.isfinite(cols["x"]))
     assert np.all(np.abs(np.diff(cols["psi"])) < 0.5)  # unwrapped across the flushes
 
