@@ -2,9 +2,9 @@
 API all read (one parser of a :class:`~autopilot.metrics.FlightRecord`, not one per caller).
 
 The error windows are the record's own (``[0, end]``, ``[10, end]``, ``[45, end]`` of
-trajectory time, keyed ``"45-120"`` for a 120 s trajectory); the lost rule is the campaigns':
-a flight is lost when its state blew up, or when it never converged and either tumbled
-(tilt > 90 deg) or ran away (error beyond its initial error + ``diverge_m``).
+trajectory time, keyed ``"45-120"`` for a 120 s trajectory); a flight is lost when it leaves
+the safety envelope (:mod:`autopilot.envelope`: the one rule of every verdict), and converged
+when its error stays within ``converge_m`` from some time to the end: two figures apart.
 """
 
 from __future__ import annotations
@@ -15,11 +15,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from autopilot.envelope import DEFAULT, Envelope
 from autopilot.metrics import FlightRecord
 from heli_common.state import PHI, THETA
 
 CONVERGE_M = 0.5  # converged: the error stays below this to the end
-DIVERGE_M = 50.0  # ran away: the error grows this far beyond its start
 
 
 def window_value(by_window: Mapping[str, float], start_s: float) -> float:
@@ -63,7 +63,7 @@ class FlightMetrics:
 
     @classmethod
     def of(
-        cls, rec: FlightRecord, converge_m: float = CONVERGE_M, diverge_m: float = DIVERGE_M
+        cls, rec: FlightRecord, converge_m: float = CONVERGE_M, envelope: Envelope = DEFAULT
     ) -> FlightMetrics:
         s = rec.summary()
         n = int(rec.t_s.size)
@@ -80,13 +80,7 @@ class FlightMetrics:
         else:
             converge_s = math.nan
         converged = not math.isnan(converge_s)
-        reason = ""
-        if not np.all(np.isfinite(rec.x)):
-            reason = "non-finite state"
-        elif n and not converged and np.nanmax(tilt) > math.pi / 2:
-            reason = "tumbled (tilt > 90 deg)"
-        elif n and not converged and np.nanmax(err) > err[0] + diverge_m:
-            reason = f"ran away (error > initial + {diverge_m:g} m)"
+        reason = envelope.leaves(rec)
         saturated = int(s.get("saturated_ticks", 0))
         return cls(
             rms_m=dict(s["rms_pos_err_m"]),

@@ -3,8 +3,12 @@ its own error windows."""
 
 from __future__ import annotations
 
+import dataclasses
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
+
+import numpy as np
 
 from autopilot.tlc.controller import Feedforward
 from autopilot.tlc.gains import Gains
@@ -67,9 +71,32 @@ class Scenario:
         base = path.parent
         return cls(
             run=run,
-            airframe=Airframe.load(base / run.airframe),
-            gains=Gains.load(base / run.gains if gains is None else gains),
+            airframe=Airframe.load(_beside(base, run.airframe)),
+            gains=Gains.load(_beside(base, run.gains) if gains is None else gains),
             trajectory=trajectory_from_table(table["trajectory"], src),
             initial=build(InitialState, table["initial_state"], f"{src}: initial_state"),
             source=path,
         )
+
+    def flying(self, trajectory: Trajectory) -> Scenario:
+        """This scenario flying ``trajectory`` instead, from its first point: the position, the
+        velocity and (moving) the heading of its first reference row, level. (A trajectory
+        flown from the scenario's own initial state would start wherever that is: the paper's
+        is 5.2 m off its spiral.)"""
+        ref = np.asarray(trajectory.sample(np.array([0.0])), dtype=float)[0]
+        pos, vel = ref[0:3], ref[3:6]
+        speed_h = math.hypot(vel[0], vel[1])
+        psi = math.atan2(vel[1], vel[0]) if speed_h > 0.1 else float(self.initial.euler_rad[2])
+        c, s = math.cos(psi), math.sin(psi)  # earth NWU -> body FLU, level
+        body = (c * vel[0] + s * vel[1], -s * vel[0] + c * vel[1], float(vel[2]))
+        start = InitialState(pos_nwu_m=(float(pos[0]), float(pos[1]), float(pos[2])),
+                             vel_flu_m_s=(float(body[0]), float(body[1]), float(body[2])),
+                             euler_rad=(0.0, 0.0, psi))  # fmt: skip
+        return dataclasses.replace(self, trajectory=trajectory, initial=start)
+
+
+def _beside(base: Path, name: str) -> Path | str:
+    """A file a scenario names: beside the scenario, else by its name (configs/), so that a
+    scenario copied out of configs/ still finds the shipped airframe and gains."""
+    here = base / name
+    return here if here.exists() or Path(name).is_absolute() else name

@@ -88,6 +88,24 @@ def normalise_spec(spec: str) -> str:
     return spec
 
 
+def user_traceback(exc: BaseException) -> str:
+    """The traceback of an exception a user's controller raised, from the first frame outside
+    the bench's own packages (the user's file and line first, the bench's frames that called
+    it left out); the whole traceback where no such frame is found."""
+    import traceback
+
+    bench = [str(Path(__file__).resolve().parent.parent / pkg) for pkg in
+             ("autopilot", "heli_common", "heli_plant", "heli_sitl", "ground")]  # fmt: skip
+    frames = traceback.extract_tb(exc.__traceback__)
+    first = next((i for i, f in enumerate(frames) if not any(f.filename.startswith(b) for b in bench)), None)
+    if first is None:
+        return "".join(traceback.format_exception(exc))
+    lines = ["Traceback (most recent call last, the bench's frames above it left out):\n"]
+    lines += traceback.format_list(frames[first:])
+    lines += traceback.format_exception_only(type(exc), exc)
+    return "".join(lines)
+
+
 def load_class(spec: str) -> type[Any]:
     """The class a ``"module:Class"`` or ``"file.py:Class"`` string names, checked against
     the contract (``update`` and ``reset``); :class:`ConfigError` names what failed."""

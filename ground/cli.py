@@ -44,7 +44,10 @@ class UsageError(Exception):
     """Bad input (file, arguments): exit status 2."""
 
 
-def build_parser() -> argparse.ArgumentParser:
+def _common_options(before_the_command: bool) -> argparse.ArgumentParser:
+    """The connection options, taken before the command or after it (``heli-ground --instance 1
+    params get X`` and ``heli-ground params get X --instance 1``): after it they have no
+    defaults of their own, so that they never undo what was given before."""
     common = argparse.ArgumentParser(add_help=False)
     arg.add_instance_args(common)
     common.add_argument("--gcs-port", type=arg.bind_port, default=None,
@@ -54,7 +57,15 @@ def build_parser() -> argparse.ArgumentParser:
                         help="MAVLink 2 signing key file (32 bytes or 64 hex digits)")
     common.add_argument("--connect-timeout-s", type=arg.positive, default=30.0,
                         help="how long to wait for the vehicle's heartbeat")
-    p = argparse.ArgumentParser(prog=PROG, description=__doc__,
+    if not before_the_command:
+        for action in common._actions:
+            action.default = argparse.SUPPRESS
+    return common
+
+
+def build_parser() -> argparse.ArgumentParser:
+    common = _common_options(before_the_command=False)
+    p = argparse.ArgumentParser(prog=PROG, description=__doc__, parents=[_common_options(True)],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="cmd", required=True)
 
@@ -265,7 +276,8 @@ def _follow(gc: GroundClient, mf: MissionFile, args: argparse.Namespace) -> Miss
         timeout = total + 120.0
     else:  # a waypoint mission's length is the vehicle's business: allow 30 s per item
         timeout = 120.0 + 30.0 * len(mf.items)
-    with tqdm(total=total, unit="s" if timed else "item", disable=args.quiet, file=sys.stderr,
+    quiet = True if args.quiet else None  # None: off where stderr is not a terminal (a log)
+    with tqdm(total=total, unit="s" if timed else "item", disable=quiet, file=sys.stderr,
               bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f} {unit} [{elapsed}<{remaining}]") as bar:
 
         def update(p: MissionProgress) -> None:

@@ -51,6 +51,7 @@ import numpy as np
 import numpy.typing as npt
 
 from autopilot import trajectory_codec as codec
+from autopilot.metrics import CSV_HEADER as RECORD_HEADER
 from autopilot.trajectory.analytic import PaperSpiralCircle
 from autopilot.trajectory.base import Trajectory
 from autopilot.trajectory.factory import trajectory_from_table
@@ -497,18 +498,27 @@ def _toml_line(text: str, table: str, key: str | None) -> int | None:
 
 CSV_REQUIRED = ("t", "x", "y", "z")
 CSV_OPTIONAL = ("yaw",)
+CSV_SI = {"t_s": "t", "x_m": "x", "y_m": "y", "z_m": "z", "yaw_rad": "yaw"}  # the API's names for the same
 
 
 def read_trajectory_csv(path: Path | str) -> TrajectorySamples:
-    """``t,x,y,z[,yaw]`` rows (NWU metres, seconds, radians) -> samples; '#' lines are comments."""
+    """``t,x,y,z[,yaw]`` rows (NWU metres, seconds, radians) -> samples; '#' lines are comments.
+    The API's ``t_s,x_m,y_m,z_m[,yaw_rad]`` names the same columns, and a run.csv flies back
+    (its t,x,y,z); velocity columns are refused: the vehicle splines the positions."""
     p = Path(path)
     rows = _csv_rows(p, _read_text(p).splitlines())
     if not rows:
         raise FileFormatError(p, None, "empty file: expected a header t,x,y,z[,yaw]")
     head_line, header = rows[0]
-    names = [h.strip().lower() for h in header]
+    names = [CSV_SI.get(h.strip().lower(), h.strip().lower()) for h in header]
+    if set(RECORD_HEADER) <= set(names):  # a flight's run.csv flies back: its truth, t,x,y,z
+        keep = [names.index(c) for c in CSV_REQUIRED]
+        rows = [(n, [cells[j] for j in keep] if len(cells) == len(names) else cells) for n, cells in rows]
+        names = list(CSV_REQUIRED)
     if names[:4] != list(CSV_REQUIRED) or not set(names[4:]) <= set(CSV_OPTIONAL) or len(names) > 5:
-        raise FileFormatError(p, head_line, f"header {','.join(header)!r}: expected t,x,y,z or t,x,y,z,yaw")
+        got = ",".join(header)
+        raise FileFormatError(p, head_line, f"header {got!r}: expected t,x,y,z or t,x,y,z,yaw (or t_s,x_m,"
+                              "y_m,z_m[,yaw_rad], or a run.csv): the vehicle splines positions")  # fmt: skip
     data: list[list[float]] = []
     lines: list[int] = []
     for lineno, row in rows[1:]:

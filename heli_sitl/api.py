@@ -24,13 +24,14 @@ import dataclasses
 import enum
 import json
 import math
-import traceback
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
+from autopilot.envelope import DEFAULT as DEFAULT_ENVELOPE
+from autopilot.envelope import Envelope
 from autopilot.estimation.config import EstimatorConfig
 from autopilot.flight_metrics import FlightMetrics
 from autopilot.metrics import FlightRecord
@@ -39,7 +40,7 @@ from autopilot.reference import N_REF
 from autopilot.scenario import Scenario
 from autopilot.tlc.gains import Gains
 from autopilot.trajectory.csv_table import trajectory_from_csv
-from autopilot.user_controller import BUILT_IN, load_class, normalise_spec
+from autopilot.user_controller import BUILT_IN, load_class, normalise_spec, user_traceback
 from heli_common.airframe import Airframe
 from heli_common.config import ConfigError
 from heli_common.plant_model import PlantModel
@@ -64,9 +65,14 @@ REF_LABELS = ("x_ref_m", "y_ref_m", "z_ref_m", "u_ref_m_s", "v_ref_m_s", "w_ref_
 
 
 class ExitStatus(enum.Enum):
+    """How a flight ended; printed as its value (``completed``, ``lost``, ``failed``)."""
+
     COMPLETED = "completed"  # flown to the end, not lost
-    LOST = "lost"  # flown, but the vehicle tumbled, ran away or its state blew up
+    LOST = "lost"  # flown, but the vehicle left the safety envelope (autopilot.envelope), back or not
     FAILED = "failed"  # the simulation itself raised (see Flight.error)
+
+    def __str__(self) -> str:
+        return self.value
 
 
 @dataclass(frozen=True)
@@ -229,6 +235,7 @@ def simulate(
     duration_s: float | None = None,
     seed: int | None = None,
     trajectory: str | Path | TrajectoryLike | None = None,
+    envelope: Envelope = DEFAULT_ENVELOPE,
 ) -> Flight:
     """Fly ``scenario`` in-process on ``plant`` in ``world`` (None: the paper's ideal world)
     with ``controller``: a :class:`TLC` or :class:`PID`, "tlc"/"pid" with their shipped
@@ -236,11 +243,16 @@ def simulate(
     contract in :mod:`autopilot.user_controller`); None: the scenario's TLC. ``seed`` seeds
     the world's turbulence and sensors. ``estimator`` tunes the navigation filter where the
     world has sensors. An exception raised by your controller's code returns the flight
-    FAILED with the traceback in ``error``. ``trajectory`` replaces the scenario's: a CSV
+    FAILED with the traceback in ``error``. ``trajectory`` replaces the scenario's, and the
+    flight starts on its first point (position, velocity, heading): a CSV
     table (``t_s, x_m, y_m, z_m`` earth NWU, optional ``vx_m_s``..., ``ax_m_s2``...,
     ``yaw_rad``; :mod:`autopilot.trajectory.csv_table`) or any object with ``sample(t)``
     returning the (N, 9) reference rows (and ``duration_s``, the flight's length unless
-    ``duration_s`` is given)."""
+    ``duration_s`` is given). The flight is LOST when it leaves ``envelope`` (an error beyond
+    10 m after 10 s, a tilt beyond 60 deg, a ground strike, a non-finite state: whether or not
+    it comes back; :class:`autopilot.envelope.Envelope`)."""
+    if not isinstance(envelope, Envelope):
+        raise ConfigError(f"envelope: expected an autopilot.envelope.Envelope, got {envelope!r}")
     user: str | type[Any] | None = None
     if isinstance(controller, str):
         user = normalise_spec(controller)  # raises, naming the forms
@@ -264,7 +276,7 @@ def simulate(
     sc = _scenario(scenario, controller)
     if trajectory is not None:
         traj = _trajectory(trajectory)
-        sc = dataclasses.replace(sc, trajectory=traj)  # type: ignore[arg-type]
+        sc = sc.flying(traj)  # type: ignore[arg-type]  # (from its first point)
         end = getattr(traj, "duration_s", None)
         if duration_s is None and isinstance(end, (int, float)) and 0.0 < end < math.inf:
             duration_s = float(end)
@@ -298,8 +310,8 @@ def simulate(
         if user is None:  # the bench's own fault: not to be dressed up as a flight's end
             raise
         return Flight(**what, status=ExitStatus.FAILED, metrics=None, record=None,
-                      error="".join(traceback.format_exception(exc)))  # fmt: skip
-    m = FlightMetrics.of(rec)
+                      error=user_traceback(exc))  # fmt: skip
+    m = FlightMetrics.of(rec, envelope=envelope)
     status = ExitStatus.LOST if m.lost else ExitStatus.COMPLETED
     return Flight(**what, status=status, metrics=m, record=rec)
 
@@ -446,6 +458,7 @@ __all__ = [
     "TLC",
     "CampaignCounts",
     "CampaignResult",
+    "Envelope",
     "ExitStatus",
     "Flight",
     "FlightMetrics",

@@ -44,11 +44,19 @@ def _simulate(args: argparse.Namespace) -> int:
     from autopilot.estimation.config import EstimatorConfig
     from autopilot.pid.gains import PidGains
     from autopilot.scenario import Scenario
+    from autopilot.user_controller import is_user_spec, user_traceback
     from ground.plots import plot_attitude_estimate, plot_estimate, plot_figures, plot_rotor, plot_world
     from heli_common.plant_model import PlantModel
     from heli_sitl.closed_loop import SimOptions, simulate
 
     scenario = Scenario.load(args.scenario, gains=args.gains)
+    if args.trajectory:  # flown from its first point, as hs.simulate(trajectory=...) flies it
+        from autopilot.trajectory.csv_table import trajectory_from_csv
+
+        traj = trajectory_from_csv(args.trajectory)
+        scenario = scenario.flying(traj)
+        if args.duration_s is None:
+            args.duration_s = traj.duration_s
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     opts = SimOptions(
@@ -63,14 +71,23 @@ def _simulate(args: argparse.Namespace) -> int:
         plant=PlantModel.load(args.plant),
     )
     with tqdm(
-        total=100, desc=f"simulate {scenario.run.name}", unit="%", disable=args.quiet,
+        total=100, desc=f"simulate {scenario.run.name}", unit="%",
+        disable=True if args.quiet else None,  # None: off where not a terminal (a log)
         bar_format="{desc}: {percentage:3.0f}%|{bar}| {elapsed}",
     ) as bar:  # fmt: skip
         def progress(k: int, n: int) -> None:
             bar.n = round(100 * k / max(n, 1))
             bar.refresh()
 
-        record = simulate(scenario, opts, progress)
+        try:
+            record = simulate(scenario, opts, progress)
+        except Exception as exc:
+            # a user's controller raised: their file and line, not the bench's frames
+            if isinstance(opts.controller, str) and is_user_spec(opts.controller):
+                print(f"heli-sitl simulate: controller {opts.controller} raised:\n{user_traceback(exc)}",
+                      file=sys.stderr, end="")  # fmt: skip
+                return Exit.FAILURE
+            raise
     record.write_csv(out / "run.csv")
     summary = record.write_summary(out / "summary.json")
     title = f"{scenario.run.name}, {record.extra['feedforward']}"
@@ -529,6 +546,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--feedforward", choices=("pseudo", "exact"), default=None)
     s.add_argument("--plant-substeps", type=arg.count, default=None, help="RK4 sub-steps per tick")
     s.add_argument("--duration-s", type=arg.positive, default=None)
+    s.add_argument("--trajectory", default=None, metavar="FILE.csv",
+                   help="fly this table instead of the scenario's trajectory, from its first point "
+                        "(t_s,x_m,y_m,z_m[,...] or t,x,y,z[,yaw], or a run.csv)")
     s.add_argument("--out", required=True, help="output directory")
     s.add_argument("--quiet", action="store_true", help="no progress bar")
     s.add_argument("--world", default=None, metavar="FILE|PRESET", help=WORLD_HELP)

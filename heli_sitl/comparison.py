@@ -481,7 +481,12 @@ class MonteCarloSet:
         return all(len({round(s.steady_rms_m, 12) for s in v}) == 1 for v in self.scores.values())
 
     def against_reference(self, label: str, metric: str) -> Paired:
-        return paired(self.values(label, metric), self.values(self.reference, metric))
+        """``label`` against the reference on the same seeds, a lost flight's value as +inf
+        (a loss in the paired test, never a dropped pair or a good number)."""
+        return paired(self._scored(label, metric), self._scored(self.reference, metric))
+
+    def _scored(self, label: str, metric: str) -> np.ndarray:
+        return np.where(self.values(label, "lost") > 0.0, np.inf, self.values(label, metric))
 
     def as_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {"title": self.title, "seeds": self.seeds, "reference": self.reference,
@@ -546,18 +551,30 @@ def campaign_paired_table(tables: dict[str, pa.Table], reference: str) -> str:
     is the better of the two."""
     ref = tables[reference]
     ids = _col(ref, "sample_id")
-    header = ["controller", "flights paired", "RMS [10,end] minus reference: p50 [CI] m", "Wilcoxon p",
+    header = ["controller", "flights paired (lost: it / the reference)", "RMS [10,end] minus reference: "
+              "p50 [CI] m (both flown)", "Wilcoxon p (losses as the worst)",
               "better than the reference in"]  # fmt: skip
     rows = []
     for lab, t in tables.items():
         if lab == reference:
             continue
-        other = dict(zip(_col(t, "sample_id"), _col(t, "rms_10_m"), strict=True))
+        other = dict(zip(_col(t, "sample_id"), _scored(t), strict=True))
         a = np.array([other.get(i, math.nan) for i in ids])
-        pr = paired(a, _col(ref, "rms_10_m"))
-        rows.append([lab, str(pr.n), _ci(pr.median_diff, "+.4f"), _p(pr.wilcoxon_p),
-                     f"{100 * pr.a_better_fraction:.0f} %"])  # fmt: skip
+        pr = paired(a, _scored(ref))
+        rows.append([lab, f"{pr.n} (lost {pr.lost_a} / {pr.lost_b})", _ci(pr.median_diff, "+.4f"),
+                     _p(pr.wilcoxon_p), f"{100 * pr.a_better_fraction:.0f} %"])  # fmt: skip
     return md_table(header, rows)
+
+
+def _scored(t: pa.Table) -> np.ndarray:
+    """A campaign's RMS from 10 s per flight, a lost flight (it left the safety envelope, or
+    raised) as +inf: a loss in the paired test, never a dropped pair or a good number."""
+    rms = np.asarray(_col(t, "rms_10_m"), dtype=float)
+    lost = np.zeros(rms.shape, dtype=bool)
+    for flag in ("diverged", "failed"):
+        if flag in t.column_names:
+            lost |= np.asarray([bool(v) for v in t.column(flag).to_pylist()])
+    return np.where(lost, np.inf, rms)
 
 
 def md_table(header: list[str], rows: list[list[str]]) -> str:

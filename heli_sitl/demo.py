@@ -219,6 +219,16 @@ def serve(opts: UpOptions, stop_after_s: float | None = None) -> None:
     for name, p in procs:  # on our SIGTERM a child exits 0 (or dies of it while starting up)
         if p.returncode not in (0, -signal.SIGTERM):
             raise DemoError(f"{name} failed ({describe_exit(p.returncode)}): {p.last_error_line()}")
+    print(f"heli-sitl up: stopped; {_written(opts.out)}", flush=True)
+
+
+def _written(out: str | Path | None) -> str:
+    """What a stopped ``up`` leaves behind, said in one line."""
+    if not out:
+        return "nothing written (--out DIR keeps the flight's record and the processes' logs)"
+    d = Path(out)
+    files = sorted(p.name + ("/" if p.is_dir() else "") for p in d.iterdir()) if d.is_dir() else []
+    return f"wrote {out}: {', '.join(files)}" if files else f"nothing in {out}"
 
 
 def scenario_file(name_or_path: str) -> Path:

@@ -22,13 +22,13 @@ from typing import Any
 
 import numpy as np
 
+from autopilot.envelope import DEFAULT, Envelope
 from autopilot.metrics import FlightRecord, window_rms_m
 from autopilot.scenario import Scenario
 from heli_common.state import EPS, ETA
 
 SETTLE_BAND_M = 0.1  # 2 % of the 5 m position step
 MOVE_M = 1.0  # a reference that moves less than this has no overshoot to speak of
-LOST_ERROR_M = 50.0  # a flight this far off its reference at the end is lost
 
 
 @dataclass(frozen=True)
@@ -44,7 +44,7 @@ class FlightScore:
     pitch_rate_rms_rad_s: float  # the commanded cyclic (eps, eta), tick to tick
     pitch_rate_max_rad_s: float
     saturated_pct: float
-    lost: float  # 1.0: non-finite, or not back near the reference at the end
+    lost: float  # 1.0: the flight left the safety envelope (autopilot.envelope), back or not
 
     @classmethod
     def names(cls) -> tuple[str, ...]:
@@ -79,13 +79,13 @@ def windows(scenario: Scenario, end_s: float) -> tuple[tuple[float, float], tupl
     return transient, w[-1]
 
 
-def score(rec: FlightRecord, scenario: Scenario) -> FlightScore:
+def score(rec: FlightRecord, scenario: Scenario, envelope: Envelope = DEFAULT) -> FlightScore:
     tt = rec.trajectory_time_s
     end = float(tt[-1]) if tt.size else 0.0
     (t0, t1), (s0, s1) = windows(scenario, end)
     err = rec.pos_err_m
     finite = bool(np.all(np.isfinite(rec.x))) and err.size > 0
-    lost = not finite or not float(err[-1]) < LOST_ERROR_M
+    lost = not finite or bool(envelope.leaves(rec))
     m = rec.window(t0, t1)
     peak = float(np.nanmax(err[m])) if m.any() else math.nan
     after = tt >= t0 - 1e-9

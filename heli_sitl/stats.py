@@ -71,23 +71,34 @@ def percentile_ci(
 
 @dataclass(frozen=True)
 class Paired:
-    """Contender A against B on the same samples (only where both are finite)."""
+    """Contender A against B on the same samples, lower being better. A non-finite value is a
+    lost flight: never a dropped pair. Where one of the pair is lost the other wins it, as
+    the largest difference of all (the signed-rank test and ``a_better_fraction`` count it);
+    where both are lost it is a tie. The medians are of each side's finite values (their
+    losses counted in ``lost_a``, ``lost_b``), the median difference of the pairs both flew."""
 
-    n: int
+    n: int  # every pair
     median_a: Interval
     median_b: Interval
-    median_diff: Interval  # of a - b per sample
-    wilcoxon_p: float  # two-sided signed-rank test of a - b; nan when every difference is 0
-    a_better_fraction: float  # of samples where a < b (lower is better)
+    median_diff: Interval  # of a - b, over the pairs both flew
+    wilcoxon_p: float  # two-sided signed-rank test of a - b, losses included; nan when all tie
+    a_better_fraction: float  # of all pairs where a < b (a lost pair counts against the loser)
+    lost_a: int = 0
+    lost_b: int = 0
 
 
 def paired(a: npt.ArrayLike, b: npt.ArrayLike, seed: int = 0, confidence: float = CONFIDENCE) -> Paired:
     x, y = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
     if x.shape != y.shape:
         raise ValueError(f"paired samples need the same shape, got {x.shape} and {y.shape}")
-    ok = np.isfinite(x) & np.isfinite(y)
-    x, y = x[ok], y[ok]
-    d = x - y
+    fa, fb = np.isfinite(x), np.isfinite(y)
+    both = fa & fb
+    d_flown = x[both] - y[both]
+    worst = 2.0 * float(np.max(np.abs(d_flown))) + 1.0 if d_flown.size else 1.0
+    d = np.zeros(x.shape)  # both lost: a tie
+    d[both] = d_flown
+    d[~fa & fb] = worst  # a lost, b flew: b wins, by more than any flown difference
+    d[fa & ~fb] = -worst
     p = math.nan
     if d.size and np.any(d != 0.0):
         p = float(sps.wilcoxon(d).pvalue)
@@ -95,7 +106,9 @@ def paired(a: npt.ArrayLike, b: npt.ArrayLike, seed: int = 0, confidence: float 
         n=int(d.size),
         median_a=percentile_ci(x, 50, seed, confidence),
         median_b=percentile_ci(y, 50, seed, confidence),
-        median_diff=percentile_ci(d, 50, seed, confidence),
+        median_diff=percentile_ci(d_flown, 50, seed, confidence),
         wilcoxon_p=p,
         a_better_fraction=float(np.mean(d < 0.0)) if d.size else math.nan,
+        lost_a=int(np.count_nonzero(~fa)),
+        lost_b=int(np.count_nonzero(~fb)),
     )

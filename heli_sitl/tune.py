@@ -188,8 +188,9 @@ def flight_cost(scenario: Scenario, opts: SimOptions, world_name: str) -> Flight
     rec = simulate(scenario, opts)
     m = FlightMetrics.of(rec)
     sat = m.saturated_fraction
-    finite = bool(np.all(np.isfinite(rec.x))) and math.isfinite(m.rms_10_m)
-    cost = m.rms_10_m + SATURATION_WEIGHT_M * sat if finite else DIVERGED_COST_M
+    # a flight that left the safety envelope costs as much as one that blew up, back or not
+    flown = bool(np.all(np.isfinite(rec.x))) and math.isfinite(m.rms_10_m) and not m.lost
+    cost = m.rms_10_m + SATURATION_WEIGHT_M * sat if flown else DIVERGED_COST_M
     return FlightCost(world_name, m.rms_10_m, m.rms_45_m, m.max_err_after_10_s_m, sat, cost,
                       scenario.run.name)  # fmt: skip
 

@@ -232,6 +232,7 @@ def test_shipped_campaigns_are_valid_and_sized_as_documented() -> None:
         "region_of_attraction": 10 * 5 * 3,
         "margins": 13 * 11,
         "sensitivity": 128 * 14,
+        "linkage-sweep": 10 * 10,
     }
     for name, n in sizes.items():
         spec, _, table = prepare(name)

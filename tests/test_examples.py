@@ -30,7 +30,7 @@ def test_the_quickstart_notebook_runs_and_shows_the_papers_figure_and_the_lqr(tm
     assert "pos_err_m" in _text(code[2])
     assert any(o.get("output_type") == "display_data" and "image/png" in o.get("data", {})
                for o in code[3].outputs)  # the figure was drawn  # fmt: skip
-    assert "LQR about hover ExitStatus.COMPLETED RMS [45, 120] s 0.0294 m" in _text(code[4])
+    assert "LQR about hover completed RMS [45, 120] s 0.0294 m" in _text(code[4])
     assert "flights 20, failed (raised) 0" in _text(code[5])
 
 

@@ -26,3 +26,21 @@ def test_a_process_on_mavlink_starts_without_the_heavy_libraries(module: str) ->
 @pytest.mark.parametrize("dof", [1, 2, 3, 6])
 def test_the_chi_square_gate_is_scipy_stats_own_quantile(probability: float, dof: int) -> None:
     assert chi2_quantile(probability, dof) == float(chi2.ppf(probability, dof))
+
+
+LOADED_KERNELS = (
+    "import sys, numba, {module}\n"
+    "print(','.join(sorted({{f'{{n}}.{{k}}' for n, mod in list(sys.modules.items())\n"
+    "    if n.split('.')[0] in ('heli_common', 'heli_plant', 'autopilot', 'ground', 'heli_sitl')\n"
+    "    for k, v in vars(mod).items()\n"
+    "    if isinstance(v, numba.core.registry.CPUDispatcher) and v.signatures}})))"
+)
+
+
+@pytest.mark.parametrize("module", ["autopilot.cli", "heli_plant.server", "ground.cli"])
+def test_a_process_runs_no_compiled_code_while_it_imports(module: str) -> None:
+    """Loading a kernel costs 0.1-0.5 s of CPU: done at import, every process pays it, most for
+    nothing (the plant built its no-world arrays at import: 0.6 s of every plant's start)."""
+    out = subprocess.run([sys.executable, "-c", LOADED_KERNELS.format(module=module)], capture_output=True,
+                         text=True, timeout=120, check=True)  # fmt: skip
+    assert out.stdout.strip() == "", f"{module} loads kernels at import: {out.stdout.strip()}"

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -44,3 +46,22 @@ def test_paired_test_finds_a_small_consistent_difference() -> None:
     assert p.median_a.lo < p.median_b.estimate < p.median_a.hi  # the unpaired intervals overlap
     same = paired(base, base + rng.normal(0.0, 0.01, 300))
     assert same.wilcoxon_p > 0.01
+
+
+def test_paired_counts_a_lost_flight_against_the_loser_never_drops_the_pair() -> None:
+    """A contender 1 % better where both fly but lost on 20 of 100 samples (NaN, inf): before,
+    its 20 losses were dropped and it won every pair (Wilcoxon p 7.8e-15 over the 80)."""
+    rng = np.random.default_rng(4)
+    base = rng.lognormal(0.0, 0.5, 100)
+    a = base * 0.99
+    a[:10], a[10:20] = np.nan, np.inf
+    p = paired(a, base)
+    assert p.n == 100 and (p.lost_a, p.lost_b) == (20, 0)
+    assert p.a_better_fraction == 0.8  # the 80 it flew, each 1 % better
+    assert p.median_diff.hi < 0.0  # where both flew, a is better
+    # the signed-rank test with the 20 losses ranked above every flown difference: the 80
+    # small wins still lean its way, far less surely (deterministic: pinned)
+    assert p.wilcoxon_p == pytest.approx(0.013861922552593253, rel=1e-9)
+    assert paired(base, a).a_better_fraction == 0.2  # the same pairs seen from b: its 20 wins
+    tie = paired(np.full(5, np.nan), np.full(5, np.inf))
+    assert tie.n == 5 and math.isnan(tie.wilcoxon_p) and tie.a_better_fraction == 0.0

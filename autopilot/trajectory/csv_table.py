@@ -11,6 +11,9 @@ row (1 = the first sample). Earth NWU (x north, y west, z up), SI units:
 * optional: ``vx_m_s, vy_m_s, vz_m_s`` (velocity), ``ax_m_s2, ay_m_s2, az_m_s2``
   (acceleration, only with velocity), each group all three or none; ``yaw_rad``.
 
+The plain ``t, x, y, z[, yaw]`` (``heli-ground fly``'s header) names the same columns, and a
+flight's ``run.csv`` flies back: its ``t, x, y, z`` (the flown truth), the rest ignored.
+
 The interpolant, per axis, by what the table gives:
 
 * position only: the C2 cubic spline (scipy CubicSpline, not-a-knot ends), the spline the
@@ -48,6 +51,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.linalg import solve_banded
 
+from autopilot.metrics import CSV_HEADER as RECORD_HEADER
 from autopilot.reference import ACC_0, N_REF, POS_0, REF_ACC, REF_POS, REF_VEL, VEL_0
 from autopilot.trajectory.sampled import TimedSamples
 from heli_common.config import ConfigError
@@ -60,6 +64,8 @@ ACCELERATION = ("ax_m_s2", "ay_m_s2", "az_m_s2")
 YAW = "yaw_rad"
 REQUIRED = (TIME, *POSITION)
 COLUMNS = (*REQUIRED, *VELOCITY, *ACCELERATION, YAW)  # every accepted column, in the usual order
+# the plain header (heli-ground fly's t,x,y,z[,yaw], the most common form) names the same
+PLAIN = {"t": TIME, "x": POSITION[0], "y": POSITION[1], "z": POSITION[2], "yaw": YAW}
 MIN_ROWS = 2  # one interval: two rows determine a piece (a line, or a quintic when derivatives are given)
 
 
@@ -221,10 +227,17 @@ def trajectory_from_csv(path: str | Path) -> CsvTrajectory:
     if not rows:
         raise ConfigError(f"{p}: empty: expected a header row naming the columns ({accepted})")
     head_line, header = rows[0]
-    names = [h.strip().lower() for h in header]
+    raw = [h.strip().lower() for h in header]
+    keep = list(range(len(raw)))
+    if set(RECORD_HEADER) <= set(raw):  # a flight's run.csv flies back: its truth, t,x,y,z
+        keep = [raw.index(c) for c in ("t", "x", "y", "z")]
+        rows = [(n, [cells[j] for j in keep] if len(cells) == len(raw) else cells) for n, cells in rows]
+        header, raw = [header[j] for j in keep], [raw[j] for j in keep]
+    names = [PLAIN.get(name, name) for name in raw]
     unknown = [h.strip() for h, name in zip(header, names, strict=True) if name not in COLUMNS]
     if unknown:
-        raise ConfigError(f"{p}: line {head_line}: unknown column(s) {unknown}; accepted: {accepted}")
+        raise ConfigError(f"{p}: line {head_line}: unknown column(s) {unknown}; accepted: {accepted} "
+                          "(or t, x, y, z, yaw; or a run.csv)")  # fmt: skip
     twice = sorted({name for name in names if names.count(name) > 1})
     if twice:
         raise ConfigError(f"{p}: line {head_line}: column(s) {twice} named more than once")

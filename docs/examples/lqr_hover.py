@@ -9,7 +9,7 @@ pitches``, ``reset()``. The same class flies
 
 * in-process:        ``python docs/examples/lqr_hover.py`` (the paper scenario), or
                      ``hs.simulate(controller="docs/examples/lqr_hover.py:LqrHover")``;
-* as processes:      ``heli-sitl up --lockstep --controller docs/examples/lqr_hover.py:LqrHover``
+* as processes:      ``heli-sitl demo --mode lockstep --autostart --controller docs/examples/lqr_hover.py:LqrHover --out out/lqr``
                      (the autopilot process loads the class);
 * in a campaign:     ``heli-sitl campaign robustness --controller docs/examples/lqr_hover.py:LqrHover``.
 

@@ -10,6 +10,7 @@ estimator the same numbers.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -123,7 +124,7 @@ class Sensing:
     ) -> int:  # fmt: skip
         m = self.model
         if world is None:
-            air, wp, ws = _NO_AIR, _NO_WP, _NO_WS
+            air, wp, ws = _no_world()
         else:
             air, wp, ws = world
         self.mask = sense(t_s, x, held, c, resting, world is not None, air, wp, ws, m.params, m.state,
@@ -154,7 +155,10 @@ def encode_measurements(codec: SimCodec, t_s: float, sensing: Sensing) -> bytes:
                                 mag=mag, gps_status=status)  # fmt: skip
 
 
-# never read (in_world False), only there for the compiled signature
-_NO_AIR = AirConstants(False, False, 1.0, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0)
-_NO_WP = world_parameters(World())
-_NO_WS = np.zeros(N_WS)
+@functools.cache
+def _no_world() -> tuple[AirConstants, FloatArray, FloatArray]:
+    """Never read (in_world False), only there for the compiled signature; built on first
+    use, not at import (world_parameters loads compiled code: 0.2-0.5 s of every plant
+    process's start, most of which fly no world)."""
+    air = AirConstants(False, False, 1.0, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0)
+    return air, world_parameters(World()), np.zeros(N_WS)

@@ -69,7 +69,9 @@ class CampaignCounts:
         if "diverged" in table.column_names:
             diverged = int(div.sum())
             if "diverged_reason" in table.column_names:
-                why = [r for r, d in zip(table.column("diverged_reason").to_pylist(), div, strict=True) if d]
+                # by kind: a reason's text before its particulars ("tilt > 60 deg (61 deg at t = ...)")
+                why = [str(r).split(" (")[0] for r, d in zip(table.column("diverged_reason").to_pylist(), div,
+                                                              strict=True) if d]  # fmt: skip
                 reasons = {r: why.count(r) for r in sorted(set(why))}
             flown = n - int(failed.sum())
             if flown > 0:

@@ -27,8 +27,9 @@ METRIC_DOC = {
     "channels of |change| tick to tick [rad]",
     "converge_s": "time from which the error stays below converge_m to the end (NaN: never) [s]",
     "converged": "1: the error stays below converge_m from some time to the end",
-    "diverged": "1: non-finite state, or not converged after a tumble (tilt > 90 deg) or a run-away "
-    "(error beyond the initial error + diverge_m)",
+    "diverged": "1: lost, the flight left the safety envelope (autopilot.envelope: a non-finite state, "
+    "tilt beyond max_tilt_deg, a ground strike, or an error beyond max_error_m after settle_s), "
+    "whether or not it came back",
     "diverged_reason": "why (empty when it did not)",
 }
 
@@ -41,7 +42,7 @@ def flight_seed(spec: CampaignSpec, sample_id: int) -> int:
 
 def metrics(rec: FlightRecord, spec: CampaignSpec) -> dict[str, Any]:
     """The campaign's columns of one flight: :class:`FlightMetrics`, the one parser."""
-    row = FlightMetrics.of(rec, spec.converge_m, spec.diverge_m).row()
+    row = FlightMetrics.of(rec, spec.converge_m, spec.envelope).row()
     return {k: row[k] for k in spec.metrics}
 
 

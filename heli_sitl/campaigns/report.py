@@ -181,7 +181,7 @@ def _outcome_labels(
         "converged": f"{conv} ({n['converged']})",
         "not_converged": f"did not converge: flown, not lost, not within {spec.converge_m:g} m at the end "
         f"({n['not_converged']})",
-        "diverged": f"diverged: lost (tumbled, ran {spec.diverge_m:g} m past its initial error, or blew up) "
+        "diverged": f"diverged: {spec.envelope.describe()} "
         f"({n['diverged']})",
         "failed": f"failed: raised an error, so no metrics; {failed_note} ({n['failed']})",
     }

@@ -223,7 +223,8 @@ def run_campaign(
 
     drawing = Figures(spec, out, quiet, draw=figures)
     with tqdm(
-        total=table.shape[0], desc=f"campaign {spec.name}", unit="flight", disable=quiet, smoothing=0.1
+        total=table.shape[0], desc=f"campaign {spec.name}", unit="flight", smoothing=0.1,
+        disable=True if quiet else None,  # None: off where not a terminal (a log)
     ) as bar:
 
         def progress(done: int, total: int, failed: int) -> None:

@@ -10,6 +10,11 @@ Roots (each a frozen dataclass the rest of the bench already loads and validates
   campaign with ``controller = "pid"``;
 * ``estimator.*``: the estimator's tuning;
 * ``run.*``: the scenario's run table (``run.rate_hz``, ``run.plant_substeps``);
+* ``plant.*``: the flying plant's file tree, on a plant with a rotor (``plant =
+  "gavrilets"``): ``plant.flapping.lon_gain_rad_per_rad``, ``plant.flapping.hub_stiffness_n_m_per_rad``,
+  ``plant.flapping.stabilizer_bar_lock_number``, ``plant.main_rotor.speed_rad_s``, ... The
+  controller keeps its design model (a rotor-aware gain set names its own ``design_plant``):
+  this is the uncertainty of the plant alone. (``plant.mismatch.*`` is ``world.mismatch.*``);
 * ``initial.*``: the initial state's fields, and three derived ones:
   ``initial.pos_offset_m`` (the start's distance from the trajectory's first point, along
   the scenario's own offset direction: 5.196 m is the paper's (3, -3, 3) m),
@@ -40,7 +45,7 @@ from heli_common.plant_model import PlantModel
 from heli_common.scenario_file import InitialState
 from heli_common.world import World
 
-ROOTS = ("world", "gains", "pid", "estimator", "run", "initial")
+ROOTS = ("world", "gains", "pid", "estimator", "run", "initial", "plant")
 ALIASES = {
     "plant.mismatch.": "world.mismatch.",
     "servo.": "world.servos.",
@@ -163,7 +168,14 @@ def apply(base: Flight, values: dict[str, float]) -> Flight:
         sc = dataclasses.replace(sc, run=_rebuilt(sc.run, by_root["run"]))
     if "initial" in by_root:
         sc = dataclasses.replace(sc, initial=_initial(sc, by_root["initial"]))
-    return Flight(sc, world, est, base.controller, pid, base.plant)
+    plant = base.plant
+    if "plant" in by_root:
+        if plant.rotor is None:
+            key = next(iter(by_root["plant"]))
+            raise ConfigError(f"{key}: the paper's plant has no rotor constants to vary; fly a plant with "
+                              'a rotor (plant = "gavrilets")')  # fmt: skip
+        plant = dataclasses.replace(plant, rotor=_rebuilt(plant.rotor, by_root["plant"]))
+    return Flight(sc, world, est, base.controller, pid, plant)
 
 
 def _initial(sc: Scenario, values: dict[str, float]) -> InitialState:

@@ -14,6 +14,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from autopilot.envelope import DEFAULT as DEFAULT_ENVELOPE
+from autopilot.envelope import Envelope
 from autopilot.user_controller import normalise_spec
 from heli_common.config import ConfigError, read_toml
 
@@ -50,7 +52,7 @@ TOP_KEYS = (
     "metrics",
     "batch",
     "converge_m",
-    "diverge_m",
+    "envelope",
     "vary",
 )
 VARY_KEYS = ("key", "dist", "low", "high", "mean", "sd", "values", "n")
@@ -101,7 +103,7 @@ class CampaignSpec:
     metrics: tuple[str, ...] = METRICS
     batch: int = 0  # flights per task; 0: chosen from the count and the workers
     converge_m: float = 0.5  # converged: the error stays below this to the end
-    diverge_m: float = 50.0  # diverged: the error exceeds this (or the state blows up)
+    envelope: Envelope = DEFAULT_ENVELOPE  # lost ("diverged"): the flight left it
     vary: tuple[Vary, ...] = field(default_factory=tuple)
     source: str = ""
 
@@ -188,6 +190,9 @@ def _vary(table: Any, where: str) -> Vary:
 
 def parse(table: dict[str, Any], source: str) -> CampaignSpec:
     for k in table:
+        if k == "diverge_m":  # (a flight 115 m off that came back was not lost under it)
+            raise _fail(f"{source}: diverge_m", "replaced by the safety envelope: [envelope] "
+                        "max_error_m, max_tilt_deg, settle_s, max_touchdown_m_s (docs/campaigns.md)")
         if k not in TOP_KEYS:
             raise _unknown(source, k, TOP_KEYS)
     name = table.get("name", Path(source).stem)
@@ -227,9 +232,12 @@ def parse(table: dict[str, Any], source: str) -> CampaignSpec:
     if isinstance(batch, bool) or not isinstance(batch, int) or batch < 0:
         raise _fail(f"{source}: batch", f"expected an integer >= 0, got {batch!r}")
     conv = _num(f"{source}: converge_m", table.get("converge_m", 0.5))
-    div = _num(f"{source}: diverge_m", table.get("diverge_m", 50.0))
-    if not 0.0 < conv < div:
-        raise _fail(f"{source}: converge_m", "expected 0 < converge_m < diverge_m")
+    env_table = table.get("envelope", {})
+    if not isinstance(env_table, dict):
+        raise _fail(f"{source}: envelope", "expected a table ([envelope]: settle_s, max_error_m, ...)")
+    envelope = Envelope.from_table(env_table, f"{source}: envelope")
+    if not 0.0 < conv < envelope.max_error_m:
+        raise _fail(f"{source}: converge_m", "expected 0 < converge_m < envelope.max_error_m")
     raw = table.get("vary", [])
     if not isinstance(raw, list) or not raw:
         raise _fail(f"{source}: vary", "expected at least one [[vary]] table")
@@ -262,7 +270,7 @@ def parse(table: dict[str, Any], source: str) -> CampaignSpec:
         metrics=tuple(metrics),
         batch=batch,
         converge_m=conv,
-        diverge_m=div,
+        envelope=envelope,
         vary=vary,
         source=source,
     )

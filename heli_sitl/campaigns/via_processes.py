@@ -1,6 +1,7 @@
 """``--via processes``: the first samples of a campaign flown again through the process
 stack (plant and autopilot processes in lockstep, over MAVLink), from files written for
-each sample (scenario, gains, world, estimator), and compared with the in-process rows.
+each sample (scenario, gains, world, estimator, and the plant where it has a rotor), and
+compared with the in-process rows.
 """
 
 from __future__ import annotations
@@ -44,7 +45,11 @@ def write_files(f: Flight, base_scenario: Path, d: Path) -> dict[str, Path]:
     (d / "world.toml").write_text(to_toml(world))
     (d / "estimator.toml").write_text(to_toml(as_table(f.estimator)))
     (d / "pid_gains.toml").write_text(to_toml(as_table(f.pid_gains or default_pid_gains())))
-    return {k: d / f"{k}.toml" for k in ("scenario", "gains", "world", "estimator", "pid_gains")}
+    names = ["scenario", "gains", "world", "estimator", "pid_gains"]
+    if f.plant.rotor is not None:  # the sample's plant, its varied constants with it
+        (d / "plant.toml").write_text(to_toml(as_table(f.plant.rotor)))
+        names.append("plant")
+    return {k: d / f"{k}.toml" for k in names}
 
 
 def compare(
@@ -74,6 +79,7 @@ def compare(
                     via_ground=False,
                     world=str(files["world"]),
                     duration_s=spec.duration_s,
+                    extra_plant_args=("--plant", str(files["plant"])) if "plant" in files else (),
                     extra_autopilot_args=("--estimator", str(files["estimator"]), "--controller",
                                           f.controller, "--pid-gains", str(files["pid_gains"])),
                 )
