@@ -138,3 +138,22 @@ def test_the_api_judges_a_real_flight_by_the_envelope_it_is_given() -> None:
     assert tight.metrics.lost_reason.startswith("error > 0.01 m after 10 s"), tight.metrics.lost_reason
     with pytest.raises(ConfigError, match="envelope: expected"):
         hs.simulate(envelope={"max_error_m": 1.0})  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize(("gain", "lost"), [(1.0, ""), (2.0, ""), (4.2, "tilt > 60 deg")])
+def test_the_rotor_aware_tlc_is_lost_where_the_linkage_is_not_its_design(gain: float, lost: str) -> None:
+    """configs/campaigns/linkage-sweep.toml in three points of its diagonal: the designed
+    rotor-aware set (its model: A_lon = B_lat = 1) on the rotor plant with the default servos
+    flies at 1 and 2 rad/rad and banks past 60 deg at Gavrilets' 4.2 (the sweep: lost in 41 of
+    100, every A_lon >= 3.5)."""
+    import dataclasses
+
+    from heli_common.plant_model import PlantModel
+
+    model = PlantModel.load("gavrilets")
+    assert model.rotor is not None
+    fl = dataclasses.replace(model.rotor.flapping, lon_gain_rad_per_rad=gain, lat_gain_rad_per_rad=gain)
+    plant = dataclasses.replace(model, rotor=dataclasses.replace(model.rotor, flapping=fl))
+    f = hs.simulate(plant=plant, world="servos-default", controller=hs.TLC("gains_tlc_rotor.toml"))
+    assert f.metrics is not None
+    assert f.metrics.lost_reason.split(" (")[0] == lost, f.metrics.lost_reason
