@@ -26,10 +26,17 @@ from collections.abc import Mapping
 from dataclasses import dataclass, fields
 
 import numpy as np
+import numpy.typing as npt
 
 from autopilot.metrics import FlightRecord
 from heli_common.config import ConfigError
 from heli_common.state import PHI, THETA, Z_U
+
+
+def tilt_rad(x: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """Per row of states ``x``: the angle between the body's up axis and the vertical [rad]."""
+    with np.errstate(invalid="ignore"):
+        return np.asarray(np.arccos(np.clip(np.cos(x[:, PHI]) * np.cos(x[:, THETA]), -1.0, 1.0)))
 
 
 @dataclass(frozen=True)
@@ -76,7 +83,7 @@ class Envelope:
         if not np.all(np.isfinite(x)):
             k = int(np.argmax(~np.all(np.isfinite(x), axis=1)))
             return f"non-finite state (t = {rec.t_s[k]:.2f} s)"
-        tilt = np.degrees(np.arccos(np.clip(np.cos(x[:, PHI]) * np.cos(x[:, THETA]), -1.0, 1.0)))
+        tilt = np.degrees(tilt_rad(x))
         over = np.flatnonzero(tilt > self.max_tilt_deg)
         if over.size:
             k = int(over[0])
@@ -114,4 +121,4 @@ class Envelope:
 
 DEFAULT = Envelope()
 
-__all__ = ["DEFAULT", "Envelope"]
+__all__ = ["DEFAULT", "Envelope", "tilt_rad"]

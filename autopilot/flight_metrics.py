@@ -15,9 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from autopilot.envelope import DEFAULT, Envelope
+from autopilot.envelope import DEFAULT, Envelope, tilt_rad
 from autopilot.metrics import FlightRecord
-from heli_common.state import PHI, THETA
 
 CONVERGE_M = 0.5  # converged: the error stays below this to the end
 
@@ -67,8 +66,8 @@ class FlightMetrics:
     ) -> FlightMetrics:
         s = rec.summary()
         n = int(rec.t_s.size)
+        tilt = tilt_rad(rec.x)
         with np.errstate(invalid="ignore"):
-            tilt = np.arccos(np.clip(np.cos(rec.x[:, PHI]) * np.cos(rec.x[:, THETA]), -1.0, 1.0))
             dt = np.diff(rec.t_s)[:, None]
             rate = np.abs(np.diff(rec.pitches, axis=0)) / dt if n > 1 else np.zeros((1, 4))
         err = rec.pos_err_m

@@ -51,9 +51,9 @@ import numpy as np
 import numpy.typing as npt
 
 from autopilot import trajectory_codec as codec
-from autopilot.metrics import CSV_HEADER as RECORD_HEADER
 from autopilot.trajectory.analytic import PaperSpiralCircle
 from autopilot.trajectory.base import Trajectory
+from autopilot.trajectory.csv_table import table_columns
 from autopilot.trajectory.factory import trajectory_from_table
 from autopilot.trajectory.manoeuvres import ArcTurn
 from autopilot.trajectory.sampled import SampledTrajectory
@@ -510,11 +510,10 @@ def read_trajectory_csv(path: Path | str) -> TrajectorySamples:
     if not rows:
         raise FileFormatError(p, None, "empty file: expected a header t,x,y,z[,yaw]")
     head_line, header = rows[0]
-    names = [CSV_SI.get(h.strip().lower(), h.strip().lower()) for h in header]
-    if set(RECORD_HEADER) <= set(names):  # a flight's run.csv flies back: its truth, t,x,y,z
-        keep = [names.index(c) for c in CSV_REQUIRED]
-        rows = [(n, [cells[j] for j in keep] if len(cells) == len(names) else cells) for n, cells in rows]
-        names = list(CSV_REQUIRED)
+    si, keep = table_columns(header)  # the one reading of a trajectory header (and a run.csv)
+    names = [CSV_SI.get(n, n) for n in si]
+    if keep is not None:
+        rows = [(n, [cells[j] for j in keep] if len(cells) == len(header) else cells) for n, cells in rows]
     if names[:4] != list(CSV_REQUIRED) or not set(names[4:]) <= set(CSV_OPTIONAL) or len(names) > 5:
         got = ",".join(header)
         raise FileFormatError(p, head_line, f"header {got!r}: expected t,x,y,z or t,x,y,z,yaw (or t_s,x_m,"

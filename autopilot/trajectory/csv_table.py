@@ -69,6 +69,19 @@ PLAIN = {"t": TIME, "x": POSITION[0], "y": POSITION[1], "z": POSITION[2], "yaw":
 MIN_ROWS = 2  # one interval: two rows determine a piece (a line, or a quintic when derivatives are given)
 
 
+def table_columns(header: list[str]) -> tuple[list[str], list[int] | None]:
+    """A trajectory table's header as the SI column names (the plain ``t, x, y, z, yaw`` named
+    as ``t_s, x_m, ...``), and which columns to keep: None for all; for a flight's run.csv its
+    truth ``t, x, y, z`` (a flown record flies back), the rest ignored. Every trajectory reader
+    (this one, ``heli-ground fly``'s) reads a header through here."""
+    raw = [h.strip().lower() for h in header]
+    keep = None
+    if set(RECORD_HEADER) <= set(raw):
+        keep = [raw.index(c) for c in ("t", "x", "y", "z")]
+        raw = [raw[j] for j in keep]
+    return [PLAIN.get(name, name) for name in raw], keep
+
+
 class CsvTrajectory(TimedSamples):
     """C2 trajectory through samples: time [s], position NWU [m], optional velocity [m/s],
     acceleration [m/s^2] (needs velocity) and yaw [rad] (kept, not flown: see the module)."""
@@ -227,13 +240,10 @@ def trajectory_from_csv(path: str | Path) -> CsvTrajectory:
     if not rows:
         raise ConfigError(f"{p}: empty: expected a header row naming the columns ({accepted})")
     head_line, header = rows[0]
-    raw = [h.strip().lower() for h in header]
-    keep = list(range(len(raw)))
-    if set(RECORD_HEADER) <= set(raw):  # a flight's run.csv flies back: its truth, t,x,y,z
-        keep = [raw.index(c) for c in ("t", "x", "y", "z")]
-        rows = [(n, [cells[j] for j in keep] if len(cells) == len(raw) else cells) for n, cells in rows]
-        header, raw = [header[j] for j in keep], [raw[j] for j in keep]
-    names = [PLAIN.get(name, name) for name in raw]
+    names, keep = table_columns(header)
+    if keep is not None:
+        rows = [(n, [cells[j] for j in keep] if len(cells) == len(header) else cells) for n, cells in rows]
+        header = [header[j] for j in keep]
     unknown = [h.strip() for h, name in zip(header, names, strict=True) if name not in COLUMNS]
     if unknown:
         raise ConfigError(f"{p}: line {head_line}: unknown column(s) {unknown}; accepted: {accepted} "
