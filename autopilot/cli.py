@@ -196,6 +196,8 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
         out.mkdir(parents=True, exist_ok=True)
         record = recorder.record(runner.wall_s, {
             "scenario": sc.run.name if manager.flew_duration(sc.run.duration_s) else None,
+            "error_windows_s": ([list(w) for w in sc.run.error_windows_s]
+                                if manager.flew_duration(sc.run.duration_s) else []),
             "mode": args.mode, "rate_hz": rate,
             "feedforward": ctrl.feedforward.value if isinstance(ctrl, TLController) else None,
             "gains": ctrl.gains.name, "controller": ctrl.kind if ctrl.kind != "user" else args.controller,

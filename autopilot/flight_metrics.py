@@ -9,6 +9,7 @@ when its error stays within ``converge_m`` from some time to the end: two figure
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -39,6 +40,9 @@ class FlightMetrics:
     converge_s: float  # from when the error stays below converge_m to the end (NaN: never)
     converged: bool
     lost_reason: str  # "" when not lost
+    # RMS 3-D position error over the scenario's own error_windows_s ("0-11": [0, 11] s of
+    # trajectory time); empty when the scenario names none
+    rms_windows_m: Mapping[str, float] = dataclasses.field(default_factory=dict)
 
     @property
     def lost(self) -> bool:
@@ -92,6 +96,7 @@ class FlightMetrics:
             converge_s=converge_s,
             converged=converged,
             lost_reason=reason,
+            rms_windows_m=dict(s.get("rms_pos_err_windows_m", {})),
         )
 
     @classmethod
@@ -105,12 +110,15 @@ class FlightMetrics:
         ticks = summary.get("ticks", 0)
         n_sat = int(sat) if isinstance(sat, (int, float)) else 0
         n = int(ticks) if isinstance(ticks, (int, float)) else 0
+        windows = summary.get("rms_pos_err_windows_m", {})
+        if not isinstance(windows, Mapping):
+            raise ValueError("summary: rms_pos_err_windows_m must be a table of windows")
         return cls(
             rms_m={str(k): float(v) for k, v in rms.items()},
             max_err_m={str(k): float(v) for k, v in mx.items()},
             max_tilt_rad=math.nan, saturated_ticks=n_sat, saturated_fraction=n_sat / n if n else math.nan,
             max_servo_rate_rad_s=math.nan, pitch_travel_rad=math.nan, converge_s=math.nan,
-            converged=False, lost_reason="",
+            converged=False, lost_reason="", rms_windows_m={str(k): float(v) for k, v in windows.items()},
         )  # fmt: skip
 
     def row(self) -> dict[str, float | int | bool | str]:

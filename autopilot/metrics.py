@@ -12,20 +12,36 @@ from typing import Any
 
 import numpy as np
 
-from heli_common.state import EULER, PHI, POS, PSI, THETA, FloatArray
+from heli_common.state import EULER, PHI, PITCH_LABELS, PITCH_NAMES, POS, PSI, THETA, FloatArray
 
+
+def ref_column(name: str) -> str:
+    """The reference column beside a state column: ``x_m`` -> ``x_ref_m``, ``psi_rad`` ->
+    ``psi_ref_rad`` (the unit stays last)."""
+    base, unit = name.split("_", 1)
+    return f"{base}_ref_{unit}"
+
+
+# run.csv: one schema with the API's tables (Flight.to_pandas, Parquet): SI units last in
+# every name, the state's names as heli_common.state.STATE_NAMES, each reference beside
+TRACKED = ("x_m", "y_m", "z_m", "phi_rad", "theta_rad", "psi_rad")  # of STATE_NAMES
 CSV_HEADER = (
+    "t_s", *TRACKED, *(ref_column(n) for n in ("x_m", "y_m", "z_m", "psi_rad")), *PITCH_LABELS,
+    ref_column("phi_rad"), ref_column("theta_rad"),
+)  # fmt: skip
+# the header run.csv had before (t, x, ..., x_cmd): such a file still flies back as a trajectory
+LEGACY_CSV_HEADER = (
     "t", "x", "y", "z", "phi", "theta", "psi",
     "x_cmd", "y_cmd", "z_cmd", "psi_cmd", "theta_m", "theta_t", "eps", "eta", "phi_cmd", "theta_cmd",
 )  # fmt: skip
-PITCH_KEYS = ("theta_m", "theta_t", "eps", "eta")
-WORLD_CSV_HEADER = ("t", "air_n", "air_w", "air_u", "theta_m_pos", "theta_t_pos", "eps_pos", "eta_pos")
+# world.csv: the air (earth NWU) and the blade pitch each servo reached
+WORLD_CSV_HEADER = ("t_s", "air_n_m_s", "air_w_m_s", "air_u_m_s", *(f"{n}_servo_rad" for n in PITCH_NAMES))
 # est.csv, flying from sensors: the estimate the controller flew on, beside run.csv's truth,
 # then the estimator's log (autopilot.estimation.log.EST_LOG_COLUMNS)
-EST_CSV_STATE = ("t", "x_est", "y_est", "z_est", "phi_est", "theta_est", "psi_est")
+EST_CSV_STATE = ("t_s", *(f"{n.split('_', 1)[0]}_est_{n.split('_', 1)[1]}" for n in TRACKED))
 # the rotor plant's own states after run.csv's columns: flapping (forward, right tilt of the
 # tip-path plane [rad]), rotor speed [rad/s] and the governor's throttle [0, 1]
-ROTOR_CSV = ("a1", "b1", "omega_rotor", "throttle")
+ROTOR_CSV = ("a1_rad", "b1_rad", "omega_rad_s", "throttle")
 ROTOR_RECORD = ("a1_rad", "b1_rad", "omega_rad_s", "governor_int_rad", "throttle")
 
 
@@ -93,10 +109,13 @@ class FlightRecord:
         """Error figures over [0, end], [10, end], [45, end] of trajectory time (the same
         windows whether in-process or over processes; holds, take-offs and landings apart);
         ``end`` is the trajectory's last tick, or ``extra["summary_end_s"]``. The paper's
-        [40, 45] figure only for the paper's scenario (``extra["scenario"] == "paper"``)."""
+        [40, 45] figure only for the paper's scenario (``extra["scenario"] == "paper"``); the
+        scenario's own ``error_windows_s`` (``extra["error_windows_s"]``) in
+        ``rms_pos_err_windows_m``, keyed "t0-t1" (NaN: no tick in the window)."""
         if self.t_s.size == 0:  # never armed: no flight to measure
             return {"ticks": 0, "duration_s": 0.0, "rms_pos_err_m": {}, "max_pos_err_m": {},
-                    "max_pos_err_40_45_m": None, "wall_s": self.wall_s, **self.extra}  # fmt: skip
+                    "max_pos_err_40_45_m": None, "rms_pos_err_windows_m": {}, "wall_s": self.wall_s,
+                    **self.extra}  # fmt: skip
         err = self.pos_err_m
         tt = self.trajectory_time_s
         flown = np.isfinite(tt)
@@ -111,17 +130,20 @@ class FlightRecord:
                 key = f"{t0:g}-{end:g}"
                 rms[key] = window_rms_m(self, t0, end)
                 mx[key] = float(np.max(err[m]))
+        # the scenario's own windows (``error_windows_s``), where the flight flew its trajectory
+        windows = self.extra.get("error_windows_s") or ()
         jump = self.window(40.0, 45.0) if self.extra.get("scenario") == "paper" else np.zeros(0, bool)
         duration = float(self.t_s[-1] - self.t_s[0])
         out: dict[str, Any] = {
             "rms_pos_err_m": rms,
             "max_pos_err_m": mx,
             "max_pos_err_40_45_m": float(np.max(err[jump])) if jump.any() else None,
+            "rms_pos_err_windows_m": {f"{a:g}-{b:g}": window_rms_m(self, a, b) for a, b in windows},
             "max_abs_phi_rad": float(np.max(np.abs(self.x[:, PHI]))),
             "max_abs_theta_rad": float(np.max(np.abs(self.x[:, THETA]))),
             "pitch_range_rad": {
                 k: [float(self.pitches[:, i].min()), float(self.pitches[:, i].max())]
-                for i, k in enumerate(PITCH_KEYS)
+                for i, k in enumerate(PITCH_NAMES)
             },
             "saturated_ticks": int(np.count_nonzero(self.saturated)),
             "ticks": int(self.t_s.size),
@@ -210,8 +232,7 @@ class FlightRecord:
         att = self.att_cmd if self.att_cmd is not None else np.full((self.t_s.size, 2), np.nan)
         cols = [self.t_s, self.x[:, POS], e, self.ref[:, 0:3], self.psi_cmd, self.pitches, att]
         if self.rotor is not None:
-            cols.append(self.rotor[:, [ROTOR_RECORD.index(k) for k in ("a1_rad", "b1_rad", "omega_rad_s",
-                                                                      "throttle")]])  # fmt: skip
+            cols.append(self.rotor[:, [ROTOR_RECORD.index(k) for k in ROTOR_CSV]])
         return np.column_stack(cols)
 
     @property

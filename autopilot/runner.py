@@ -576,4 +576,4 @@ _CSV_COLS = [
 ]  # fmt: skip
 _ROTOR0 = Recorder.ROW.offset("rotor")
 _CSV_COLS_ROTOR = [*_CSV_COLS, *range(_ROTOR0, _ROTOR0 + N_ROTOR_TRUTH)]
-_CSV_PSI = CSV_HEADER.index("psi")
+_CSV_PSI = CSV_HEADER.index("psi_rad")

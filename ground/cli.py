@@ -322,7 +322,7 @@ def _log(args: argparse.Namespace) -> int:
     if args.csv is not None:
         cols = tlog_columns(args.out)
         write_csv(cols, args.csv)
-        print(f"wrote {args.csv} ({len(cols['t'])} rows)")
+        print(f"wrote {args.csv} ({len(cols['t_s'])} rows)")
     return 0
 
 
@@ -330,7 +330,7 @@ def _plot(args: argparse.Namespace) -> int:
     from ground.plots import plot_figures
 
     cols = tlog_columns(args.tlog)
-    if len(cols["t"]) < 2:
+    if len(cols["t_s"]) < 2:
         raise UsageError(f"{args.tlog}: no position telemetry (LOCAL_POSITION_NED) from the vehicle")
     for f in plot_figures(cols, args.out, title=args.tlog.stem):
         print(f"wrote {f}")

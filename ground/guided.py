@@ -421,8 +421,8 @@ class GuidedFlight:
 def truth_tracking(
     track_csv: Path, plant_csv: Path, window_s: tuple[float, float], lift_m: float = 0.0
 ) -> TrackingSummary:
-    """The same figures from the simulator's truth: plant.csv (``t`` on the vehicle's clock,
-    as the lockstep backends keep it; ``x, y, z`` NWU about home) against the targets streamed
+    """The same figures from the simulator's truth: plant.csv (``t_s`` on the vehicle's clock,
+    as the lockstep backends keep it; ``x_m, y_m, z_m`` NWU about home) against the targets streamed
     (``track_csv`` of :class:`GuidedFlight`), interpolated to the plant's rows."""
     from ground.plots import read_csv_columns
 
@@ -430,12 +430,12 @@ def truth_tracking(
     if tr["t_vehicle_s"].size < 2:
         raise GroundError(f"{track_csv}: fewer than two rows")
     t0 = float(tr["t_vehicle_s"][0] - tr["t_traj_s"][0])
-    m = (pl["t"] - t0 >= window_s[0]) & (pl["t"] - t0 <= window_s[1])
+    m = (pl["t_s"] - t0 >= window_s[0]) & (pl["t_s"] - t0 <= window_s[1])
     if not m.any():
         raise GroundError(f"{plant_csv}: no row in the window [{window_s[0]:g}, {window_s[1]:g}] s")
-    t = pl["t"][m]
+    t = pl["t_s"][m]
     target_ned = np.column_stack([np.interp(t, tr["t_vehicle_s"], tr[f"target_{k}_m"]) for k in "ned"])
-    truth_ned = flip_rows(np.column_stack([pl["x"][m], pl["y"][m], pl["z"][m]]))
+    truth_ned = flip_rows(np.column_stack([pl["x_m"][m], pl["y_m"][m], pl["z_m"][m]]))
     err = np.linalg.norm(truth_ned - target_ned, axis=1)
     rms = float(np.sqrt(np.mean(err**2)))
     return TrackingSummary(window_s, rms, float(err.max()), int(err.size), t0, lift_m)

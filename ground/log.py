@@ -7,24 +7,24 @@ received (heli_common.mavlink.udp.TlogWriter; ``mavlogdump.py`` reads it).
 Columns (:data:`autopilot.metrics.CSV_HEADER`, the paper's NWU/FLU frames, SI units), one
 row per LOCAL_POSITION_NED of the vehicle:
 
-* ``t``: flight time [s], as in ``run.csv``: the vehicle's clock (LOCAL_POSITION_NED
+* ``t_s``: flight time [s], as in ``run.csv``: the vehicle's clock (LOCAL_POSITION_NED
   .time_boot_ms, the time the controller saw, not the reception time, so network jitter
   does not bend the curves) minus the arming tick's. The vehicle sends a HEARTBEAT and that
   tick's LOCAL_POSITION_NED in the tick it arms, so the first LOCAL_POSITION_NED after the
   first armed HEARTBEAT is t = 0. A log with no arming in it keeps the time since boot
   (:func:`tlog_time_origin` says which).
-* ``x, y, z``: LOCAL_POSITION_NED converted NED -> NWU (heli_common.frames).
-* ``phi, theta, psi``: the ATTITUDE of the same tick (FRD -> FLU); psi unwrapped, as run.csv.
-* ``x_cmd, y_cmd, z_cmd``: POSITION_TARGET_LOCAL_NED (10 Hz) interpolated linearly to the
+* ``x_m, y_m, z_m``: LOCAL_POSITION_NED converted NED -> NWU (heli_common.frames).
+* ``phi_rad, theta_rad, psi_rad``: the ATTITUDE of the same tick (FRD -> FLU); psi unwrapped, as run.csv.
+* ``x_ref_m, y_ref_m, z_ref_m``: POSITION_TARGET_LOCAL_NED (10 Hz) interpolated linearly to the
   row's time (the reference is smooth; holding it would lag by up to 100 ms, ~0.2 m at
   2 m/s); held for up to :data:`STALE_S` after the last sample; NaN when there is no
   target (disarmed: the vehicle sends none).
-* ``psi_cmd``: POSITION_TARGET_LOCAL_NED.yaw, the controller's own yaw command (FRD ->
+* ``psi_ref_rad``: POSITION_TARGET_LOCAL_NED.yaw, the controller's own yaw command (FRD ->
   FLU), unwrapped and resampled like the targets; NaN where the vehicle gives none (a
   type_mask with POSITION_TARGET_TYPEMASK_YAW_IGNORE, or no target: disarmed).
-* ``phi_cmd, theta_cmd``: ATTITUDE_TARGET (10 Hz, FRD quaternion -> FLU Euler), the
+* ``phi_ref_rad, theta_ref_rad``: ATTITUDE_TARGET (10 Hz, FRD quaternion -> FLU Euler), the
   controller's roll and pitch commands, resampled like the targets; NaN without one.
-* ``theta_m, theta_t, eps, eta``: SERVO_OUTPUT_RAW (10 Hz, resampled like the targets)
+* ``theta_m_rad, theta_t_rad, eps_rad, eta_rad``: SERVO_OUTPUT_RAW (10 Hz, resampled like the targets)
   mapped back through the inverse of heli_common.servo_map.to_pwm_us with the airframe's
   pitch limits (or the LIM_* parameters seen in the log); the PWM quantum of 1 us is
   (hi - lo) / 1000 rad of pitch, and a saturated command reads as its limit. The control
@@ -229,11 +229,12 @@ def tlog_columns(
     att_cmd = _resample(t, att[:, 0], att[:, 1:])
     psi_cmd = cmd[:, 9]
     cols = {
-        "t": t, "x": rows[:, 1], "y": rows[:, 2], "z": rows[:, 3],
-        "phi": rows[:, 4], "theta": rows[:, 5], "psi": np.unwrap(rows[:, 6]) if t.size else rows[:, 6],
-        "x_cmd": cmd[:, 0], "y_cmd": cmd[:, 1], "z_cmd": cmd[:, 2], "psi_cmd": psi_cmd,
-        "theta_m": pitches[:, 0], "theta_t": pitches[:, 1], "eps": pitches[:, 2], "eta": pitches[:, 3],
-        "phi_cmd": att_cmd[:, 0], "theta_cmd": att_cmd[:, 1],
+        "t_s": t, "x_m": rows[:, 1], "y_m": rows[:, 2], "z_m": rows[:, 3],
+        "phi_rad": rows[:, 4], "theta_rad": rows[:, 5],
+        "psi_rad": np.unwrap(rows[:, 6]) if t.size else rows[:, 6],
+        "x_ref_m": cmd[:, 0], "y_ref_m": cmd[:, 1], "z_ref_m": cmd[:, 2], "psi_ref_rad": psi_cmd,
+        "theta_m_rad": pitches[:, 0], "theta_t_rad": pitches[:, 1], "eps_rad": pitches[:, 2],
+        "eta_rad": pitches[:, 3], "phi_ref_rad": att_cmd[:, 0], "theta_ref_rad": att_cmd[:, 1],
     }  # fmt: skip
     return {k: np.ascontiguousarray(cols[k], dtype=float) for k in CSV_HEADER}
 
@@ -258,6 +259,6 @@ def write_csv(cols: Columns, path: Path | str) -> None:
     with Path(path).open("w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(CSV_HEADER)
-        n = len(cols["t"])
+        n = len(cols["t_s"])
         for i in range(n):
             w.writerow([f"{cols[h][i]:.9g}" for h in CSV_HEADER])

@@ -14,6 +14,8 @@ import matplotlib.pyplot as plt
 import numpy as np
 import numpy.typing as npt
 
+from autopilot.metrics import ref_column
+
 Cols = Mapping[str, npt.NDArray[np.float64]]
 FIGURES = ("fig5_path3d.png", "fig6_position.png", "fig7_attitude.png", "fig8_controls.png",
            "fig9_error.png")
@@ -39,14 +41,14 @@ def plot_figures(
         pitch_limits_rad = Airframe.load().limits.as_tuple()
     lim = np.asarray(pitch_limits_rad, dtype=float).reshape(4, 2)
     out_dir.mkdir(parents=True, exist_ok=True)
-    t = cols["t"]
+    t = cols["t_s"]
     paths = [out_dir / f for f in FIGURES]
     suffix = f" - {title}" if title else ""
 
     fig = plt.figure(figsize=(7, 6))
     ax = fig.add_subplot(projection="3d")
-    ax.plot(cols["x_cmd"], cols["y_cmd"], cols["z_cmd"], "k--", lw=1, label="command")
-    ax.plot(cols["x"], cols["y"], cols["z"], "b", lw=1.2, label="helicopter")
+    ax.plot(cols["x_ref_m"], cols["y_ref_m"], cols["z_ref_m"], "k--", lw=1, label="command")
+    ax.plot(cols["x_m"], cols["y_m"], cols["z_m"], "b", lw=1.2, label="helicopter")
     ax.set_xlabel("x north [m]")
     ax.set_ylabel("y west [m]")
     ax.set_zlabel("z up [m]")
@@ -56,9 +58,9 @@ def plot_figures(
     fig.savefig(paths[0], dpi=110)
     plt.close(fig)
 
-    _tracking_panels(paths[1], cols, (("x", "m"), ("y", "m"), ("z", "m"), ("psi", "rad")),
+    _tracking_panels(paths[1], cols, (("x_m", "m"), ("y_m", "m"), ("z_m", "m"), ("psi_rad", "rad")),
                      f"Fig. 6: position and yaw vs command{suffix}", (8, 9))
-    _tracking_panels(paths[2], cols, (("phi", "rad"), ("theta", "rad")),
+    _tracking_panels(paths[2], cols, (("phi_rad", "rad"), ("theta_rad", "rad")),
                      f"Fig. 7: roll and pitch (FLU){suffix}", (8, 6))
 
     fig, axs = plt.subplots(4, 1, figsize=(8, 9), sharex=True)
@@ -69,7 +71,7 @@ def plot_figures(
         "eta": "lateral cyclic",
     }
     for i, (a, (key, label)) in enumerate(zip(axs, labels.items(), strict=True)):
-        a.plot(t, cols[key], "b", lw=1.1)
+        a.plot(t, cols[f"{key}_rad"], "b", lw=1.1)
         for bound in lim[i]:
             a.axhline(bound, color="r", ls=":", lw=1)  # the servo's limits
         a.set_ylabel(f"{key} [rad]")
@@ -81,7 +83,7 @@ def plot_figures(
     fig.savefig(paths[3], dpi=110)
     plt.close(fig)
 
-    err = np.sqrt(sum((cols[k] - cols[f"{k}_cmd"]) ** 2 for k in ("x", "y", "z")))
+    err = np.sqrt(sum((cols[k] - cols[ref_column(k)]) ** 2 for k in ("x_m", "y_m", "z_m")))
     fig, ax = plt.subplots(figsize=(8, 3.5))
     ax.semilogy(t, np.maximum(err, 1e-6), "b", lw=1.1)
     ax.set_ylabel("|position error| [m]")
@@ -102,8 +104,8 @@ PATH_MIN_SPAN_M = 1.0
 def _min_span(ax: Any, cols: Cols, span_m: float) -> None:
     """Widen each axis of a 3-D plot whose path and command span less than ``span_m``
     to ``span_m`` about their middle; wider axes keep matplotlib's autoscale."""
-    for key, set_lim in (("x", ax.set_xlim), ("y", ax.set_ylim), ("z", ax.set_zlim)):
-        v = np.concatenate([cols[key], cols[f"{key}_cmd"]])
+    for key, set_lim in (("x_m", ax.set_xlim), ("y_m", ax.set_ylim), ("z_m", ax.set_zlim)):
+        v = np.concatenate([cols[key], cols[ref_column(key)]])
         v = v[np.isfinite(v)]
         if v.size and v.max() - v.min() < span_m:
             mid = 0.5 * (v.max() + v.min())
@@ -114,13 +116,13 @@ def _tracking_panels(
     path: Path, cols: Cols, keys: tuple[tuple[str, str], ...], title: str, size: tuple[float, float]
 ) -> None:
     """One panel per (column, unit) against time: the command (dashed) where there is one."""
-    t = cols["t"]
+    t = cols["t_s"]
     fig, axs = plt.subplots(len(keys), 1, figsize=size, sharex=True)
     for a, (key, unit) in zip(axs, keys, strict=True):
-        if f"{key}_cmd" in cols:
-            a.plot(t, cols[f"{key}_cmd"], "k--", lw=1, label="command")
+        if ref_column(key) in cols:
+            a.plot(t, cols[ref_column(key)], "k--", lw=1, label="command")
         a.plot(t, cols[key], "b", lw=1.1, label="actual")
-        a.set_ylabel(f"{key} [{unit}]")
+        a.set_ylabel(f"{key.split('_', 1)[0]} [{unit}]")
         a.grid(alpha=0.3)
     # the legend above the first panel, beside the title: never over the data
     axs[0].legend(loc="lower right", bbox_to_anchor=(1.0, 1.0), ncol=2, frameon=False, fontsize=8)
@@ -258,19 +260,22 @@ def plot_rotor(cols: dict[str, npt.NDArray[np.float64]], out_dir: Path, title: s
     """Fig 12, on the rotor plant: rotor speed, the governor's throttle, and the tip-path
     plane's flapping beside the cyclic that commands it (run.csv's rotor columns). None
     (nothing drawn) for a flight without them."""
-    if "omega_rotor" not in cols:
+    if "omega_rad_s" not in cols:
         return None
     out_dir.mkdir(parents=True, exist_ok=True)
     path = out_dir / ROTOR_FIGURE
-    t = cols["t"]
+    t = cols["t_s"]
     fig, axs = plt.subplots(4, 1, figsize=(8, 9), sharex=True)
-    axs[0].plot(t, cols["omega_rotor"], "b", lw=0.9)
+    axs[0].plot(t, cols["omega_rad_s"], "b", lw=0.9)
     axs[0].set_ylabel("rotor speed [rad/s]")
     axs[1].plot(t, cols["throttle"], "m", lw=0.9)
     axs[1].set_ylabel("throttle [0-1]")
-    for a, flap, cyc, name in ((axs[2], "a1", "eps", "longitudinal"), (axs[3], "b1", "eta", "lateral")):
-        a.plot(t, cols[cyc], "k--", lw=0.8, label=f"cyclic {cyc}")
-        a.plot(t, cols[flap], "b", lw=0.9, label=f"flapping {flap}")
+    for a, flap, cyc, name in (
+        (axs[2], "a1_rad", "eps_rad", "longitudinal"),
+        (axs[3], "b1_rad", "eta_rad", "lateral"),
+    ):
+        a.plot(t, cols[cyc], "k--", lw=0.8, label=f"cyclic {cyc.removesuffix('_rad')}")
+        a.plot(t, cols[flap], "b", lw=0.9, label=f"flapping {flap.removesuffix('_rad')}")
         a.set_ylabel(f"{name} [rad]")
         a.legend(loc="lower right", bbox_to_anchor=(1.0, 1.0), ncol=2, frameon=False, fontsize=8)
     for a in axs:

@@ -37,7 +37,7 @@ from typing import IO
 import numpy as np
 
 from heli_common.ardupilot_json import json_state_from_plant
-from heli_common.state import N_PITCH, PITCH_NAMES, STATE_NAMES, FloatArray
+from heli_common.state import N_PITCH, PITCH_LABELS, STATE_NAMES, FloatArray
 from heli_common.swashplate import Swashplate
 from heli_plant.ardupilot_link import ArduPilotJsonLink
 from heli_plant.model import Plant
@@ -91,8 +91,8 @@ class ArduPilotBackend:
         self._interlock = False
         self._writer = None if record is None else csv.writer(record)
         if self._writer is not None:
-            self._writer.writerow(["t", *[n.split("_")[0] for n in STATE_NAMES], *PITCH_NAMES, "interlock",
-                                   "rotor_rad_s"])  # fmt: skip
+            # the bench's one schema (run.csv, the API's tables): SI units last in each name
+            self._writer.writerow(["t_s", *STATE_NAMES, *PITCH_LABELS, "interlock", "rotor_rad_s"])
         self._next_record_s = 0.0
         # (pitches, refused, saturated, interlock, speed fraction) by a frame's channels 1-4 and 8
         self._readings: dict[tuple[int, ...], tuple[FloatArray, int, int, bool, float]] = {}

@@ -60,7 +60,9 @@ if TYPE_CHECKING:
     import pyarrow as pa
     from matplotlib.axes import Axes
 
-REF_LABELS = ("x_ref_m", "y_ref_m", "z_ref_m", "u_ref_m_s", "v_ref_m_s", "w_ref_m_s",
+# the reference in earth NWU (velocity and acceleration as a trajectory table names them);
+# run.csv's and every table's names (autopilot.metrics.CSV_HEADER: one schema)
+REF_LABELS = ("x_ref_m", "y_ref_m", "z_ref_m", "vx_ref_m_s", "vy_ref_m_s", "vz_ref_m_s",
               "ax_ref_m_s2", "ay_ref_m_s2", "az_ref_m_s2")  # fmt: skip
 
 
@@ -146,6 +148,9 @@ class Flight:
         out.update({n: r.x[:, i] for i, n in enumerate(STATE_NAMES)})
         out.update({n: r.ref[:, i] for i, n in enumerate(REF_LABELS)})
         out.update({n: r.pitches[:, i] for i, n in enumerate(PITCH_LABELS)})
+        out["psi_ref_rad"] = r.psi_cmd
+        if r.att_cmd is not None:  # the commanded roll and pitch, as run.csv names them
+            out["phi_ref_rad"], out["theta_ref_rad"] = r.att_cmd[:, 0], r.att_cmd[:, 1]
         out["pos_err_m"] = r.pos_err_m
         out["saturated"] = np.asarray(r.saturated, dtype=float)
         return out

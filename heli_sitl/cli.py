@@ -445,9 +445,10 @@ def _up(args: argparse.Namespace) -> int:
 def _demo(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from autopilot.metrics import PITCH_KEYS
+    from autopilot.metrics import WORLD_CSV_HEADER
     from ground.plots import plot_figures, plot_rotor, plot_world, read_csv_columns
     from heli_common.process import terminate_on_sigterm
+    from heli_common.state import PITCH_LABELS
     from heli_sitl.demo import DemoError, DemoOptions, run_demo
 
     terminate_on_sigterm()
@@ -471,11 +472,11 @@ def _demo(args: argparse.Namespace) -> int:
         figs.append(rotor_fig)
     if (out / "world.csv").is_file():  # the plant flew a world: the air and the servos it reported
         w = read_csv_columns(out / "world.csv")
-        air = np.column_stack([w["air_n"], w["air_w"], w["air_u"]])
-        reached = np.column_stack([w[f"{k}_pos"] for k in PITCH_KEYS])
-        commanded = np.column_stack([cols[k] for k in PITCH_KEYS])
+        air = np.column_stack([w["air_n_m_s"], w["air_w_m_s"], w["air_u_m_s"]])
+        reached = np.column_stack([w[k] for k in WORLD_CSV_HEADER[4:]])
+        commanded = np.column_stack([cols[k] for k in PITCH_LABELS])
         title = f"{args.mode}, world {args.world}"
-        figs.append(plot_world(w["t"], air, commanded, reached, out, title=title))
+        figs.append(plot_world(w["t_s"], air, commanded, reached, out, title=title))
     from autopilot.flight_metrics import FlightMetrics
 
     print(rms_line(FlightMetrics.from_summary(summary)))
@@ -514,7 +515,10 @@ def _campaign(args: argparse.Namespace) -> int:
 
 
 def rms_line(m: FlightMetrics) -> str:
-    return "RMS 3-D position error: " + ", ".join(f"[{k}] s {v:.4f} m" for k, v in m.rms_m.items())
+    line = "RMS 3-D position error: " + ", ".join(f"[{k}] s {v:.4f} m" for k, v in m.rms_m.items())
+    if m.rms_windows_m:  # the scenario's own windows
+        line += "; scenario windows: " + ", ".join(f"[{k}] s {v:.4f} m" for k, v in m.rms_windows_m.items())
+    return line
 
 
 def add_controller_args(p: argparse.ArgumentParser) -> None:

@@ -315,6 +315,7 @@ def simulate(
         "plant_substeps": plant.substeps,
         "gains": user.name if user else pid.gains.name if use_pid else scenario.gains.name,
         "controller": user.spec if user else kind,
+        "error_windows_s": [list(w) for w in run.error_windows_s],
     }  # fmt: skip
     extra["plant"] = plant.model.kind
     if plant.world is not None or sn.on:

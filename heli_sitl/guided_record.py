@@ -20,7 +20,7 @@ import numpy as np
 from autopilot.metrics import FlightRecord
 from ground.plots import read_csv_columns
 from heli_common.frames import flip_rows
-from heli_common.state import PITCH_NAMES, STATE_NAMES
+from heli_common.state import PITCH_LABELS, STATE_NAMES
 
 
 def guided_record(plant_csv: Path, track_csv: Path, duration_s: float, extra: dict[str, object] | None = None
@@ -29,17 +29,17 @@ def guided_record(plant_csv: Path, track_csv: Path, duration_s: float, extra: di
     if tr["t_vehicle_s"].size < 2:
         raise ValueError(f"{track_csv}: fewer than two rows")
     t0 = float(tr["t_vehicle_s"][0] - tr["t_traj_s"][0])
-    tt = pl["t"] - t0
+    tt = pl["t_s"] - t0
     m = (tt >= -1e-9) & (tt <= duration_s + 1e-9)
     if m.sum() < 2:
         raise ValueError(f"{plant_csv}: no rows in the trajectory's time [0, {duration_s:g}] s")
-    t = pl["t"][m]
+    t = pl["t_s"][m]
     target_ned = np.column_stack([np.interp(t, tr["t_vehicle_s"], tr[f"target_{k}_m"]) for k in "ned"])
     pos = flip_rows(target_ned)
     vel = np.gradient(pos, t, axis=0)
     acc = np.gradient(vel, t, axis=0)
-    x = np.column_stack([pl[n.split("_")[0]][m] for n in STATE_NAMES])
-    pitches = np.column_stack([pl[n][m] for n in PITCH_NAMES])
+    x = np.column_stack([pl[n][m] for n in STATE_NAMES])
+    pitches = np.column_stack([pl[n][m] for n in PITCH_LABELS])
     return FlightRecord(
         t_s=t, x=x, ref=np.hstack([pos, vel, acc]), pitches=pitches, psi_cmd=np.full(t.size, np.nan),
         saturated=np.zeros(t.size, dtype=bool), wall_s=float("nan"), extra=dict(extra or {}),

@@ -124,7 +124,8 @@ def test_the_plant_process_steps_once_per_new_frame_and_survives_bad_packets(
     assert link["resends_answered"] >= 1
     assert link["refused"] == {"short": 2, "oversized": 1, "magic": 1, "frame_rate": 0}
     rows = (tmp_path / "plant.csv").read_text().splitlines()
-    assert rows[0].startswith("t,x,y,z,u,v,w,phi,theta,psi,p,q,r,theta_m,theta_t,eps,eta,interlock")
+    assert rows[0].startswith("t_s,x_m,y_m,z_m,u_m_s,v_m_s,w_m_s,phi_rad,theta_rad,psi_rad,p_rad_s,q_rad_s,"
+                              "r_rad_s,theta_m_rad,theta_t_rad,eps_rad,eta_rad,interlock")
     assert len(rows) - 1 == pytest.approx(200, abs=2)  # 100 Hz over 2 s
 
 

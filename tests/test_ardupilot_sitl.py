@@ -74,8 +74,8 @@ def test_ardupilot_flies_the_paper_plant_and_the_rotor_plant(tmp_path: Path) -> 
         assert isinstance(modes, list) and 4 in modes and modes[-1] == 9  # GUIDED, then LAND
         flags = res["ekf_flags"]
         assert isinstance(flags, int) and flags & 0x01 and flags & 0x10  # attitude, horizontal position
-        t = truth["t"]
-        pos = np.column_stack([truth["x"], truth["y"], truth["z"]])
+        t = truth["t_s"]
+        pos = np.column_stack([truth["x_m"], truth["y_m"], truth["z_m"]])
         t0, t1 = float(str(res["t_takeoff"])), float(str(res["t_hover_end"]))
         k0 = int(np.searchsorted(t, t0))
         target = np.array([pos[k0, 0], pos[k0, 1], 5.0])  # 5 m above the take-off point

@@ -83,7 +83,7 @@ def test_stopping_before_arming_writes_an_empty_record(tmp_path: Path) -> None:
     assert up.wait(timeout=60) == 0, up.output()[-2000:]
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["ticks"] == 0 and summary["rms_pos_err_m"] == {}
-    assert (tmp_path / "run.csv").read_text().startswith("t,x,y,z")
+    assert (tmp_path / "run.csv").read_text().startswith("t_s,x_m,y_m,z_m,")
     assert "Traceback" not in (tmp_path / "logs" / "autopilot.log").read_text()
 
 
@@ -121,10 +121,10 @@ def test_a_killed_autopilot_leaves_its_record_up_to_a_second_before(tmp_path: Pa
             plant.kill()
             autopilot.kill()
     cols = read_csv_columns(tmp_path / "run.csv")
-    print(f"record ends at {cols['t'][-1]:.2f} s; the last telemetry at {vehicle_s:.2f} s")
-    assert vehicle_s - 1.5 < cols["t"][-1] <= vehicle_s, f"record ends at {cols['t'][-1]:.2f} s"
-    assert np.all(np.diff(cols["t"]) > 0) and np.all(np.isfinite(cols["x"]))
-    assert np.all(np.abs(np.diff(cols["psi"])) < 0.5)  # unwrapped across the flushes
+    print(f"record ends at {cols['t_s'][-1]:.2f} s; the last telemetry at {vehicle_s:.2f} s")
+    assert vehicle_s - 1.5 < cols["t_s"][-1] <= vehicle_s, f"record ends at {cols['t_s'][-1]:.2f} s"
+    assert np.all(np.diff(cols["t_s"]) > 0) and np.all(np.isfinite(cols["x_m"]))
+    assert np.all(np.abs(np.diff(cols["psi_rad"])) < 0.5)  # unwrapped across the flushes
 
 
 @pytest.mark.slow

@@ -16,6 +16,7 @@ import numpy as np
 import pyarrow as pa
 import pytest
 
+from autopilot.metrics import ref_column
 from ground.plots import plot_estimate, plot_figures
 from heli_sitl.campaigns.report import plots
 from heli_sitl.campaigns.spec import CampaignSpec, Vary
@@ -111,12 +112,12 @@ def test_a_grid_map_marks_failed_flights_apart(tmp_path: Path, drawn: Callable[[
 
 def _flat_cols() -> dict[str, np.ndarray]:
     t = np.linspace(0.0, 10.0, 101)
-    cols = {"t": t}
-    for k, v in (("x", 20 * np.cos(t)), ("y", 10 * np.sin(t)), ("z", 20.0 + 0.01 * np.sin(3 * t)),
-                 ("psi", 0 * t), ("phi", 0 * t), ("theta", 0 * t)):  # fmt: skip
-        cols[k], cols[f"{k}_cmd"] = v, v
-    cols["z_cmd"] = np.full_like(t, 20.0)
-    for k in ("theta_m", "theta_t", "eps", "eta"):
+    cols = {"t_s": t}
+    for k, v in (("x_m", 20 * np.cos(t)), ("y_m", 10 * np.sin(t)), ("z_m", 20.0 + 0.01 * np.sin(3 * t)),
+                 ("psi_rad", 0 * t), ("phi_rad", 0 * t), ("theta_rad", 0 * t)):  # fmt: skip
+        cols[k], cols[ref_column(k)] = v, v
+    cols["z_ref_m"] = np.full_like(t, 20.0)
+    for k in ("theta_m_rad", "theta_t_rad", "eps_rad", "eta_rad"):
         cols[k] = 0 * t
     return cols
 

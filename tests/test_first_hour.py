@@ -15,10 +15,12 @@ import numpy as np
 import pytest
 
 import heli_sitl as hs
+from autopilot.metrics import CSV_HEADER, LEGACY_CSV_HEADER
 from autopilot.scenario import Scenario
 from autopilot.trajectory import trajectory_from_csv
 from ground import files
 from ground.cli import build_parser
+from ground.plots import read_csv_columns
 from heli_common.config import CONFIG_DIR, ConfigError
 from heli_common.state import X_N, Z_U
 from heli_sitl.demo import _written
@@ -67,6 +69,17 @@ def test_a_run_csv_flies_back(tmp_path: Path) -> None:
     # 5.2 m off, which a spline through positions alone follows less closely than the spiral
     assert again.metrics.rms_10_m == pytest.approx(0.15169333922, rel=1e-6), again.metrics.rms_m
     assert files.read_trajectory_csv(run_csv).t_s.size == 3001
+    # one schema: run.csv's columns are the API's (to_pandas, Parquet), by name and value
+    api, csv_cols = first.columns(), read_csv_columns(run_csv)
+    assert list(csv_cols) == list(CSV_HEADER) and set(CSV_HEADER) <= set(api)
+    for name in CSV_HEADER:
+        want = np.unwrap(api[name]) if name == "psi_rad" else api[name]
+        np.testing.assert_allclose(csv_cols[name], want, rtol=1e-8, atol=1e-12, err_msg=name)
+    # a run.csv from before the one schema (t, x, ..., x_cmd) still flies back
+    legacy = tmp_path / "legacy.csv"
+    rows = [[0.0] * 17, [10.0] + [2.0] * 16]  # t, then x, y, z and the rest
+    legacy.write_text("\n".join(",".join(map(str, r)) for r in [LEGACY_CSV_HEADER, *rows]) + "\n")
+    np.testing.assert_allclose(trajectory_from_csv(legacy).sample(np.array([10.0]))[0, 0:3], [2.0, 2.0, 2.0])
 
 
 def test_a_trajectory_is_flown_from_its_own_first_point(tmp_path: Path) -> None:

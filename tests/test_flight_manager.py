@@ -6,15 +6,19 @@ here once, with an injected time and state, and over the wire in test_ground_cli
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
 from autopilot.flight import commands as c
 from autopilot.flight.manager import FlightConfig, FlightManager, LandedState, MissionState
 from autopilot.flight.modes import Mode
+from autopilot.links.mavlink_modes import REPORTED
 from autopilot.trajectory.analytic import StraightLine
 from heli_common.geo import GeoPoint
 from heli_common.mavlink import mission_items as ms
+from heli_common.mavlink import modes as wm
 from heli_common.mavlink.mission_items import MissionItem
 
 HOME = GeoPoint(47.4, 8.5, 488.0)
@@ -44,7 +48,11 @@ def test_arming_needs_no_plan_and_holds_where_it_is(mgr: FlightManager) -> None:
     assert mgr.execute(c.Arm(), 0.0, ON_GROUND).accepted
     assert mgr.armed and mgr.mode is Mode.HOLD
     assert mgr.execute(c.Takeoff(3.0), 0.0, ON_GROUND).accepted  # then a take-off (MAVSDK)
-    assert mgr.mode is Mode.AUTO
+    assert mgr.mode is Mode.TAKEOFF  # reported as TAKEOFF while it climbs, then it holds
+    assert REPORTED[mgr.mode] is wm.TAKEOFF
+    end = mgr.flight.trajectory.duration_s if mgr.flight.trajectory else math.nan
+    mgr.flight.reference(end + 1.0, ON_GROUND)
+    assert mgr.mode is Mode.HOLD
 
 
 def test_mission_mode_while_disarmed_starts_on_the_arming_tick(mgr: FlightManager) -> None:

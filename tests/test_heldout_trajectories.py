@@ -6,11 +6,13 @@ on the paper's plant against the error measured when the scenarios were made."""
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 
 import numpy as np
 import pytest
 
+from autopilot.flight_metrics import FlightMetrics
 from autopilot.metrics import FlightRecord, window_rms_m
 from autopilot.scenario import Run, Scenario
 from autopilot.trajectory.analytic import StraightLine
@@ -240,6 +242,13 @@ def test_window_rms_is_the_summarys() -> None:
     assert window_rms_m(rec, 2.0, 6.0) == pytest.approx(math.sqrt(np.mean(np.sin(t[m]) ** 2)), rel=1e-15)
     assert math.isnan(window_rms_m(rec, 20.0, 30.0))
     assert rec.summary()["rms_pos_err_m"]["0-10"] == window_rms_m(rec, 0.0, 10.0)
+    assert rec.summary()["rms_pos_err_windows_m"] == {}  # the scenario named none
+    # a scenario's own windows, as a process run's summary.json reports them
+    named = dataclasses.replace(rec, extra={"error_windows_s": [[2.0, 6.0], [20.0, 30.0]]})
+    summary = json.loads(json.dumps(named.summary()))
+    by_window = FlightMetrics.from_summary(summary).rms_windows_m
+    assert by_window["2-6"] == window_rms_m(rec, 2.0, 6.0) and math.isnan(by_window["20-30"])
+    assert FlightMetrics.of(named).rms_windows_m["2-6"] == by_window["2-6"]
 
 
 # ---------------------------------------------------------------- the flights, paper TLC
@@ -270,8 +279,12 @@ def fly(name: str) -> tuple[Scenario, FlightRecord]:
 
 
 def window_rms(name: str) -> list[float]:
+    """The scenario's own windows, as the summary (summary.json, FlightMetrics) reports them."""
     sc, rec = fly(name)
-    return [window_rms_m(rec, a, b) for a, b in sc.run.error_windows_s]
+    by_window = FlightMetrics.of(rec).rms_windows_m
+    assert list(by_window) == [f"{a:g}-{b:g}" for a, b in sc.run.error_windows_s]
+    assert rec.summary()["rms_pos_err_windows_m"] == by_window
+    return [by_window[f"{a:g}-{b:g}"] for a, b in sc.run.error_windows_s]
 
 
 @pytest.mark.parametrize("name", SCENARIOS)

@@ -246,6 +246,8 @@ async def fly_actions(api_port: int, out: Actions) -> None:
         await action.set_takeoff_altitude(3.0)
         await action.arm()
         await action.takeoff()
+        await asyncio.sleep(0.5)
+        out.modes.append(await mode())  # climbing: TAKEOFF, as MAVSDK names it
         pv = await until(lambda pv: -pv.position.down_m > 2.85, 30.0)
         out.took_off_to_m = -pv.position.down_m
         await asyncio.sleep(3.0)
@@ -297,6 +299,7 @@ def test_mavsdk_takeoff_hold_offboard_rtl_and_land() -> None:
           f"{out.offboard_reached_m:.2f} m from its setpoint; RTL ended {out.home_dist_after_rtl_m:.2f} m "
           f"from home")  # fmt: skip
     assert abs(out.took_off_to_m - 3.0) < 0.3
-    assert out.modes == [FlightMode.HOLD, FlightMode.OFFBOARD, FlightMode.RETURN_TO_LAUNCH]
+    assert out.modes == [FlightMode.TAKEOFF, FlightMode.HOLD, FlightMode.OFFBOARD,
+                         FlightMode.RETURN_TO_LAUNCH]  # fmt: skip
     assert out.offboard_settled, f"{out.offboard_reached_m:.2f} m off the setpoint after {OFFBOARD_LIMIT_S} s"
     assert out.home_dist_after_rtl_m < 1.0 and out.landed_after

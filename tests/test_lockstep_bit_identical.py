@@ -20,7 +20,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from autopilot.estimation.config import EstimatorConfig
-from autopilot.metrics import EST_CSV_STATE, PITCH_KEYS, FlightRecord
+from autopilot.metrics import EST_CSV_STATE, FlightRecord
 from autopilot.scenario import Scenario
 from ground.plots import read_csv_columns
 from heli_common import servo_map
@@ -33,13 +33,13 @@ from heli_common.mavlink.sim_protocol import (
     state_as_received,
 )
 from heli_common.plant_model import PlantModel
-from heli_common.state import EULER, N_PITCH, N_STATE, OMEGA, POS, VEL, FloatArray
+from heli_common.state import EULER, N_PITCH, N_STATE, OMEGA, PITCH_LABELS, POS, VEL, FloatArray
 from heli_common.world import World
 from heli_plant.model import accept_pitches
 from heli_sitl.closed_loop import SimOptions, simulate
 from heli_sitl.demo import DemoOptions, run_demo
 
-POSITION = ("x", "y", "z")
+POSITION = ("x_m", "y_m", "z_m")
 WIRE_TOL_M = 1e-9  # the issue's bound; measured: 0.0 for every shipped preset and gain set
 
 
@@ -52,7 +52,7 @@ def wire_position_difference(run_csv: Path, rec: FlightRecord) -> FloatArray:
     the sim link carries them (float32)."""
     cols = read_csv_columns(run_csv)
     ref = rec.columns()
-    assert cols["t"].size == ref["t"].size
+    assert cols["t_s"].size == ref["t_s"].size
     d = np.stack([_f32(cols[k]) - _f32(ref[k]) for k in POSITION], axis=1)
     return np.asarray(np.abs(d).max(axis=1))
 
@@ -61,7 +61,7 @@ def same_pitches(run_csv: Path, rec: FlightRecord, tmp_path: Path) -> bool:
     """The controller's pitches of every tick, equal in run.csv's own number format."""
     rec.write_csv(tmp_path / "in_process.csv")
     a, b = read_csv_columns(run_csv), read_csv_columns(tmp_path / "in_process.csv")
-    return all(np.array_equal(a[k], b[k]) for k in PITCH_KEYS)
+    return all(np.array_equal(a[k], b[k]) for k in PITCH_LABELS)
 
 
 # -- the link's rounding, reproduced exactly ------------------------------------------------

@@ -71,16 +71,16 @@ def test_tlog_columns_are_the_telemetry_in_paper_frames(tmp_path: Path) -> None:
     tlog = tmp_path / "s.tlog"
     t, x, ref, u = synthetic_tlog(tlog)
     cols = tlog_columns(tlog)
-    assert np.allclose(cols["t"], t)
-    for i, k in enumerate(("x", "y", "z")):
+    assert np.allclose(cols["t_s"], t)
+    for i, k in enumerate(("x_m", "y_m", "z_m")):
         assert np.allclose(cols[k], x[:, i], atol=1e-6)
-    assert np.allclose(cols["psi"], 0.2, atol=1e-6)
-    assert np.allclose(cols["x_cmd"][:-1], ref[:-1, 0], atol=1e-6)  # interpolated between 10 Hz samples
-    assert np.allclose(cols["z_cmd"], 2.0, atol=1e-6)
-    assert np.allclose(cols["psi_cmd"], 0.0)  # as sent
+    assert np.allclose(cols["psi_rad"], 0.2, atol=1e-6)
+    assert np.allclose(cols["x_ref_m"][:-1], ref[:-1, 0], atol=1e-6)  # interpolated between 10 Hz samples
+    assert np.allclose(cols["z_ref_m"], 2.0, atol=1e-6)
+    assert np.allclose(cols["psi_ref_rad"], 0.0)  # as sent
     lim = np.array(Airframe.load().limits.as_tuple())
     quantum = (lim[:, 1] - lim[:, 0]) / 1000
-    for i, k in enumerate(("theta_m", "theta_t", "eps", "eta")):
+    for i, k in enumerate(("theta_m_rad", "theta_t_rad", "eps_rad", "eta_rad")):
         assert np.all(np.abs(cols[k][::2] - u[::2, i]) <= 0.5 * quantum[i] + 1e-12), k
 
 
@@ -193,48 +193,48 @@ def test_heli_ground_log_is_read_by_mavlogdump_and_matches_the_autopilot(
     # and the paper's [40, 45] figure is not reported for a waypoint mission
     summary = json.loads((vdir / "summary.json").read_text())
     (whole,) = [k for k in summary["rms_pos_err_m"] if k.startswith("0-")]
-    assert float(whole.split("-")[1]) < run["t"][-1] - 1.0, whole
+    assert float(whole.split("-")[1]) < run["t_s"][-1] - 1.0, whole
     assert summary["max_pos_err_40_45_m"] is None and summary["scenario"] is None
     # one time base: the tlog's columns count flight time from the arming tick, as run.csv
-    ours_ms = np.round(cols["t"] * 1e3).astype(int)
-    run_ms = np.round(run["t"] * 1e3).astype(int)
+    ours_ms = np.round(cols["t_s"] * 1e3).astype(int)
+    run_ms = np.round(run["t_s"] * 1e3).astype(int)
     t_arm = tlog_time_origin(tlog)
     assert t_arm is not None
 
     def matched(offset_ms: int) -> tuple[np.ndarray, np.ndarray]:
         _, i, j = np.intersect1d(ours_ms, run_ms + offset_ms, return_indices=True)
-        keep = ~np.isnan(cols["x_cmd"][i])
+        keep = ~np.isnan(cols["x_ref_m"][i])
         return i[keep], j[keep]
 
     def misfit(offset_ms: int) -> float:
         i, j = matched(offset_ms)
-        return float(np.mean(np.abs(cols["z"][i] - run["z"][j]) + np.abs(cols["x"][i] - run["x"][j])))
+        return float(np.mean(np.abs(cols["z_m"][i] - run["z_m"][j]) + np.abs(cols["x_m"][i] - run["x_m"][j])))
 
     offset = min(range(-500, 500, 10), key=misfit)
     assert offset == 0, f"the tlog's t = 0 is {offset} ms off run.csv's"
-    assert np.isnan(cols["x_cmd"][cols["t"] < 0]).all()  # disarmed before t = 0: no target
+    assert np.isnan(cols["x_ref_m"][cols["t_s"] < 0]).all()  # disarmed before t = 0: no target
     i_ours, i_run = matched(offset)
     assert i_ours.size > 200
     print(f"armed at vehicle time {t_arm:.2f} s; {i_ours.size} rows compared")
     dev = {k: np.abs(cols[k][i_ours] - run[k][i_run]) for k in CSV_HEADER[1:]}
-    for k in ("psi", "psi_cmd"):  # angles: compared modulo 2 pi
+    for k in ("psi_rad", "psi_ref_rad"):  # angles: compared modulo 2 pi
         dev[k] = np.abs(np.angle(np.exp(1j * (cols[k][i_ours] - run[k][i_run]))))
     stats = (f"{k} {np.median(v):.1e}/{np.percentile(v, 95):.1e}/{v.max():.1e}" for k, v in dev.items())
     print("tlog CSV vs autopilot run.csv, |difference| median / p95 / max: " + "; ".join(stats))
-    for k in ("x", "y", "z", "phi", "theta", "psi"):
+    for k in ("x_m", "y_m", "z_m", "phi_rad", "theta_rad", "psi_rad"):
         assert dev[k].max() < 1e-5, k  # the same tick's state, as float32 on the wire
-    for k in ("x_cmd", "y_cmd", "z_cmd"):
+    for k in ("x_ref_m", "y_ref_m", "z_ref_m"):
         # 10 Hz samples interpolated to 20 Hz rows: exact on the samples, <= a dt^2 / 8
         # between them (1.3 mm at 1 m/s^2); only a step of the reference (the land command
         # starting where the vehicle is) is smeared over one interval.
         assert np.median(dev[k]) < 1e-5 and np.percentile(dev[k], 95) < 3e-3, k
     lim = np.array(Airframe.load().limits.as_tuple())
-    for n, k in enumerate(("theta_m", "theta_t", "eps", "eta")):
+    for n, k in enumerate(("theta_m_rad", "theta_t_rad", "eps_rad", "eta_rad")):
         quantum = (lim[n, 1] - lim[n, 0]) / 1000  # 1 us of PWM
         assert np.median(dev[k]) < 0.5 * quantum + 1e-9, k  # exact on the 10 Hz samples
-    assert np.median(dev["psi_cmd"]) < 1e-5  # the controller's own yaw command, sent
-    assert np.percentile(dev["psi_cmd"], 95) < 0.01
-    for k in ("phi_cmd", "theta_cmd"):  # ATTITUDE_TARGET: the commands of Fig 7, at 10 Hz
+    assert np.median(dev["psi_ref_rad"]) < 1e-5  # the controller's own yaw command, sent
+    assert np.percentile(dev["psi_ref_rad"], 95) < 0.01
+    for k in ("phi_ref_rad", "theta_ref_rad"):  # ATTITUDE_TARGET: the commands of Fig 7, at 10 Hz
         # exact on the rows that are the samples (about half of the 20 Hz rows: the median sat
         # on the edge between them and the interpolated ones, 1.009e-5 once under load);
         # between samples the interpolation's error, at most 0.01 rad on 95 % of the rows

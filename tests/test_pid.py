@@ -109,9 +109,9 @@ def test_pid_in_lockstep_processes_flies_the_in_process_flight(tmp_path: Path) -
     summary = run_demo(opts)
     cols = read_csv_columns(tmp_path / "run.csv")
     ref = rec.columns()
-    d = np.stack([cols[k] - ref[k] for k in ("x", "y", "z")], axis=1)
+    d = np.stack([cols[k] - ref[k] for k in ("x_m", "y_m", "z_m")], axis=1)
     print(f"PID lockstep vs in-process: max {np.abs(d).max():.2e} m")
-    assert cols["t"].size == ref["t"].size and np.abs(d).max() < 1e-3
+    assert cols["t_s"].size == ref["t_s"].size and np.abs(d).max() < 1e-3
     assert summary["controller"] == "pid"
 
 

@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 from ports import new_port
 
-from autopilot.metrics import CSV_HEADER
+from autopilot.metrics import CSV_HEADER, ref_column
 from ground.plots import read_csv_columns
 from heli_common.airframe import Airframe
 from heli_common.mavlink.sim_protocol import command_message, state_messages
@@ -74,7 +74,7 @@ def _wait_text(gcs: MavlinkUdp, part: str, timeout_s: float) -> list[str]:
 
 
 def _pos_err(cols: dict[str, np.ndarray]) -> np.ndarray:
-    return np.sqrt(sum((cols[k] - cols[f"{k}_cmd"]) ** 2 for k in ("x", "y", "z")))
+    return np.sqrt(sum((cols[k] - cols[ref_column(k)]) ** 2 for k in ("x_m", "y_m", "z_m")))
 
 
 def test_hostile_datagrams_and_a_stall_do_not_lose_the_flight(tmp_path: Path) -> None:
@@ -112,14 +112,14 @@ def test_hostile_datagrams_and_a_stall_do_not_lose_the_flight(tmp_path: Path) ->
     assert summary["loop"]["resumes"] >= 1 and summary["loop"]["gap_max_s"] > 1.5
     cols = read_csv_columns(tmp_path / "run.csv")
     assert set(CSV_HEADER) <= set(cols)
-    assert np.all(np.abs(cols["x"]) < 100.0)  # nothing of the 1e30 m state reached the record
+    assert np.all(np.abs(cols["x_m"]) < 100.0)  # nothing of the 1e30 m state reached the record
     err = _pos_err(cols)
-    t = cols["t"]
+    t = cols["t_s"]
     after = t > 27.0  # from 2 s after the stall to the end
     print(f"max error after the stall {err[after].max():.3f} m, "
-          f"max |theta| {np.abs(cols['theta'][after]).max():.3f} rad")
+          f"max |theta| {np.abs(cols['theta_rad'][after]).max():.3f} rad")
     assert err[after].max() < 1.0
-    assert np.abs(cols["theta"][after]).max() < 0.3
+    assert np.abs(cols["theta_rad"][after]).max() < 0.3
     assert err[t > 40.0].max() < 0.3  # recovered
 
 

@@ -46,10 +46,10 @@ def test_lockstep_reproduces_the_in_process_flight(tmp_path: Path, in_process) -
         DemoOptions(mode="lockstep", rate_hz=100.0, out=tmp_path, timeout_s=600, via_ground=False)
     )
     cols = read_csv_columns(tmp_path / "run.csv")
-    assert cols["t"].size == in_process["t"].size == 12001
+    assert cols["t_s"].size == in_process["t_s"].size == 12001
     # the positions as the sim link carried them (float32; run.csv's 9 digits read back to
     # that very float32): the same flight, bit for bit (tests/test_lockstep_bit_identical.py)
-    d = np.stack([_f32(cols[k]) - _f32(in_process[k]) for k in ("x", "y", "z")], axis=1)
+    d = np.stack([_f32(cols[k]) - _f32(in_process[k]) for k in ("x_m", "y_m", "z_m")], axis=1)
     worst = float(np.abs(d).max())
     assert worst <= 1e-9, f"lockstep vs in-process max {worst:.2e} m"
     assert summary["loop"]["bad_outputs"] == 0  # type: ignore[index]
@@ -228,7 +228,7 @@ def test_silent_links_are_detected_and_the_command_held(tmp_path: Path) -> None:
     assert summary["loop"]["plant_stale_events"] >= 1
     assert summary["loop"]["bad_outputs"] == 0
     cols = read_csv_columns(tmp_path / "run.csv")
-    assert all(np.all(np.isfinite(cols[k])) for k in ("theta_m", "theta_t", "eps", "eta"))
+    assert all(np.all(np.isfinite(cols[k])) for k in ("theta_m_rad", "theta_t_rad", "eps_rad", "eta_rad"))
 
 
 def test_demo_through_the_ground_script_matches_in_process(tmp_path: Path, in_process) -> None:  # type: ignore[no-untyped-def]
@@ -236,10 +236,10 @@ def test_demo_through_the_ground_script_matches_in_process(tmp_path: Path, in_pr
     selects mission mode and arms; the held plant is released on that tick."""
     summary = run_demo(DemoOptions(mode="lockstep", rate_hz=100.0, out=tmp_path, timeout_s=600))
     cols = read_csv_columns(tmp_path / "run.csv")
-    flight = cols["t"] <= 120.0 + 1e-9
+    flight = cols["t_s"] <= 120.0 + 1e-9
     d = np.stack(
-        [np.interp(in_process["t"], cols["t"][flight], cols[k][flight]) - in_process[k]
-         for k in ("x", "y", "z")], axis=1,
+        [np.interp(in_process["t_s"], cols["t_s"][flight], cols[k][flight]) - in_process[k]
+         for k in ("x_m", "y_m", "z_m")], axis=1,
     )  # fmt: skip
     rms = float(np.sqrt(np.mean(np.sum(d**2, axis=1))))
     assert rms <= 1e-3, f"ground-script flight vs in-process RMS {rms:.2e} m"
@@ -248,9 +248,9 @@ def test_demo_through_the_ground_script_matches_in_process(tmp_path: Path, in_pr
     assert (tmp_path / "ground.tlog").stat().st_size > 0
     # After the spiral (still moving at 0.785 m/s) the reference brakes to a hold and the
     # landing starts there: no step in the reference, no kick beyond the start transient.
-    after = cols["t"] > 120.0
-    cmd = np.stack([cols[k] for k in ("x_cmd", "y_cmd", "z_cmd")], axis=1)
+    after = cols["t_s"] > 120.0
+    cmd = np.stack([cols[k] for k in ("x_ref_m", "y_ref_m", "z_ref_m")], axis=1)
     steps = np.linalg.norm(np.diff(cmd, axis=0), axis=1)
     assert steps[after[1:]].max() < 0.01, f"reference step {steps[after[1:]].max():.3f} m after 120 s"
-    kick = float(np.abs(cols["theta"][after]).max())
-    assert kick <= float(np.abs(in_process["theta"]).max()), f"pitch {kick:.3f} rad after the mission"
+    kick = float(np.abs(cols["theta_rad"][after]).max())
+    assert kick <= float(np.abs(in_process["theta_rad"]).max()), f"pitch {kick:.3f} rad after the mission"

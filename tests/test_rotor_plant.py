@@ -165,15 +165,15 @@ def test_lockstep_flies_the_in_process_flight_on_the_rotor_plant(
                          duration_s=30.0, extra_plant_args=("--plant", "gavrilets")))  # fmt: skip
     cols = read_csv_columns(tmp_path / "run.csv")
     ref = rec.columns()
-    assert cols["t"].size == ref["t"].size == 3001
-    d = np.stack([cols[k] - ref[k] for k in ("x", "y", "z")], axis=1)
+    assert cols["t_s"].size == ref["t_s"].size == 3001
+    d = np.stack([cols[k] - ref[k] for k in ("x_m", "y_m", "z_m")], axis=1)
     rms = float(np.sqrt(np.mean(np.sum(d**2, axis=1))))
     print(f"{preset}: lockstep vs in-process RMS {rms:.2e} m")
     assert rms <= tol_m
     # the rotor's truth crosses the sim link into run.csv, the summary and the tlog
-    for k in ("a1", "b1", "omega_rotor", "throttle"):
+    for k in ("a1_rad", "b1_rad", "omega_rad_s", "throttle"):
         np.testing.assert_allclose(cols[k], ref[k], atol=1e-4 * max(1.0, float(np.abs(ref[k]).max())))
-    assert abs(cols["omega_rotor"][-1] - 167.0) < 5.0
+    assert abs(cols["omega_rad_s"][-1] - 167.0) < 5.0
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["rotor"]["omega_rad_s"][0] < 167.0 < summary["rotor"]["omega_rad_s"][1]
     log = mavutil.mavlink_connection(str(tmp_path / "flight.tlog"))

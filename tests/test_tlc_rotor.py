@@ -157,8 +157,8 @@ def test_lockstep_flies_the_in_process_flight(tmp_path: Path) -> None:
                          extra_autopilot_args=("--gains", "gains_tlc_rotor.toml")))  # fmt: skip
     cols = read_csv_columns(tmp_path / "run.csv")
     ref = rec.columns()
-    assert cols["t"].size == ref["t"].size == 3001
-    d = np.stack([cols[k] - ref[k] for k in ("x", "y", "z")], axis=1)
+    assert cols["t_s"].size == ref["t_s"].size == 3001
+    d = np.stack([cols[k] - ref[k] for k in ("x_m", "y_m", "z_m")], axis=1)
     norm = np.linalg.norm(d, axis=1)
     rms = float(np.sqrt(np.mean(norm**2)))
     print(f"lockstep vs in-process: RMS {rms:.2e} m, max {norm.max():.2e} m")

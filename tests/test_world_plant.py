@@ -176,7 +176,7 @@ def test_simulate_shows_the_world(tmp_path: object) -> None:
     assert (out / "fig10_world.png").stat().st_size > 10_000
     with (out / "world.csv").open() as fh:
         rows = list(csv.reader(fh))
-    assert rows[0][:4] == ["t", "air_n", "air_w", "air_u"] and len(rows) == 502
+    assert rows[0][:4] == ["t_s", "air_n_m_s", "air_w_m_s", "air_u_m_s"] and len(rows) == 502
     run = np.loadtxt(out / "run.csv", delimiter=",", skiprows=1)
     reached = np.array(rows[1:], dtype=float)[:, 4:8]
     commanded = run[:, 11:15]

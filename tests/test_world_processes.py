@@ -45,8 +45,8 @@ def test_lockstep_flies_the_in_process_flight_in_the_same_world(
                                    world=preset, duration_s=60.0, extra_autopilot_args=extra))  # fmt: skip
     cols = read_csv_columns(tmp_path / "run.csv")
     ref = rec.columns()
-    assert cols["t"].size == ref["t"].size == 6001
-    d = np.stack([_f32(cols[k]) - _f32(ref[k]) for k in ("x", "y", "z")], axis=1)
+    assert cols["t_s"].size == ref["t_s"].size == 6001
+    d = np.stack([_f32(cols[k]) - _f32(ref[k]) for k in ("x_m", "y_m", "z_m")], axis=1)
     worst = float(np.abs(d).max())
     print(f"{preset}: lockstep vs in-process max {worst:.2e} m; RMS {summary['rms_pos_err_m']} m")
     assert worst <= 1e-9, f"lockstep vs in-process max {worst:.2e} m"
@@ -59,8 +59,8 @@ def test_lockstep_flies_the_in_process_flight_in_the_same_world(
     # as in-process (float32 on the wire), NaN for the state before the first hold
     w = read_csv_columns(tmp_path / "world.csv")
     assert rec.air_nwu_m_s is not None and rec.servo_rad is not None
-    air = np.column_stack([w["air_n"], w["air_w"], w["air_u"]])
-    servo = np.column_stack([w[f"{k}_pos"] for k in ("theta_m", "theta_t", "eps", "eta")])
+    air = np.column_stack([w["air_n_m_s"], w["air_w_m_s"], w["air_u_m_s"]])
+    servo = np.column_stack([w[f"{k}_servo_rad"] for k in ("theta_m", "theta_t", "eps", "eta")])
     assert np.isnan(air[0]).all() and np.isnan(rec.air_nwu_m_s[0]).all()
     np.testing.assert_array_equal(_f32(air[1:]), _f32(rec.air_nwu_m_s[1:]))
     np.testing.assert_array_equal(_f32(servo[1:]), _f32(rec.servo_rad[1:]))
@@ -143,7 +143,7 @@ def test_a_live_sim_wind_change_reaches_the_plant_and_the_log(tmp_path: Path) ->
     # fuselage drag alone needs, (rho/2)(9^2 - 3^2) S_x / (m g) = 0.055 rad (the rotors'
     # inflow in the edgewise flow adds to it)
     run = read_csv_columns(tmp_path / "out" / "run.csv")
-    t, att = run["t"], np.column_stack([run["phi"], run["theta"]])
+    t, att = run["t_s"], np.column_stack([run["phi_rad"], run["theta_rad"]])
     before = att[(t > t_change - 3.0) & (t < t_change - 0.5)].mean(axis=0)
     after = att[(t > t_change + 3.0) & (t < 13.5)].mean(axis=0)
     lean = float(np.linalg.norm(after - before))
@@ -169,12 +169,12 @@ def test_lockstep_flies_the_in_process_flight_from_the_same_sensors(
                                    world=preset, duration_s=30.0, extra_autopilot_args=extra))  # fmt: skip
     cols = read_csv_columns(tmp_path / "run.csv")
     ref = rec.columns()
-    assert cols["t"].size == ref["t"].size == 3001
-    d = np.stack([_f32(cols[k]) - _f32(ref[k]) for k in ("x", "y", "z")], axis=1)
+    assert cols["t_s"].size == ref["t_s"].size == 3001
+    d = np.stack([_f32(cols[k]) - _f32(ref[k]) for k in ("x_m", "y_m", "z_m")], axis=1)
     worst = float(np.abs(d).max())
     est = read_csv_columns(tmp_path / "est.csv")
     assert rec.x_hat is not None and rec.est_log is not None
-    d_est = np.column_stack([est["x_est"], est["y_est"], est["z_est"]]) - rec.x_hat[:, 0:3]
+    d_est = np.column_stack([est["x_est_m"], est["y_est_m"], est["z_est_m"]]) - rec.x_hat[:, 0:3]
     print(f"{preset}: lockstep vs in-process max {worst:.2e} m (truth), "
           f"{np.abs(d_est).max():.2e} m (estimate)")
     assert worst <= 1e-9
@@ -244,9 +244,9 @@ def test_gps_loss_over_the_ground_station_holds_then_lands(tmp_path: Path) -> No
     since = est["since_fix_s"]
     lost = np.flatnonzero(since > 1.0)
     assert lost.size, "the estimator never saw the GPS gone"
-    t_lost = run["t"][lost[0]]
-    hold = (run["t"] > t_lost) & (run["t"] < t_lost + 9.0)
-    pos = np.column_stack([run["x"], run["y"], run["z"]])
+    t_lost = run["t_s"][lost[0]]
+    hold = (run["t_s"] > t_lost) & (run["t_s"] < t_lost + 9.0)
+    pos = np.column_stack([run["x_m"], run["y_m"], run["z_m"]])
     drift = np.linalg.norm(pos[hold] - pos[lost[0]], axis=1).max()
     print(f"GPS lost at t = {t_lost:.2f} s; largest true drift while holding {drift:.3f} m; "
           f"landed at z = {pos[-1, 2]:.2f} m")
@@ -256,8 +256,8 @@ def test_gps_loss_over_the_ground_station_holds_then_lands(tmp_path: Path) -> No
     # truth on only about a quarter of the ticks, 25.6 % measured: it is overconfident;
     # docs/estimator.md)
     sd = np.column_stack([est["sd_pos_n"], est["sd_pos_w"]])
-    err = np.abs(np.column_stack([est["x_est"] - run["x"], est["y_est"] - run["y"]]))
-    out = (run["t"] > t_lost) & (run["t"] < t_lost + 9.0)
+    err = np.abs(np.column_stack([est["x_est_m"] - run["x_m"], est["y_est_m"] - run["y_m"]]))
+    out = (run["t_s"] > t_lost) & (run["t_s"] < t_lost + 9.0)
     covered = float(np.mean(err[out] <= 2.0 * sd[out]))
     print(f"outage: position sigma {sd[out][0].round(3)} -> {sd[out][-1].round(3)} m; "
           f"truth inside 2 sigma {100 * covered:.1f} % of the ticks")

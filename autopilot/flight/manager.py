@@ -230,7 +230,7 @@ class FlightManager:
         lo, hi = TAKEOFF_ALT_RANGE_M
         if not (math.isfinite(alt) and lo <= alt <= hi):
             return c.Reply(c.Result.DENIED, f"Takeoff refused: altitude {alt:.1f} m")
-        reply = self._start_items([self._local_item(ms.CMD_TAKEOFF, alt)], Mode.AUTO)
+        reply = self._start_items([self._local_item(ms.CMD_TAKEOFF, alt)], Mode.TAKEOFF)
         return reply if reply.text else c.Reply(reply.result, f"Takeoff to {alt:.1f} m")
 
     def _land(self, cmd: c.Land) -> c.Reply:

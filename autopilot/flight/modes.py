@@ -25,9 +25,10 @@ class Mode(enum.Enum):
     GUIDED = "GUIDED"  # following streamed setpoints (offboard)
     LAND = "LAND"
     RTL = "RTL"
+    TAKEOFF = "TAKEOFF"  # climbing to a take-off altitude (a ground station's take-off)
 
 
-FOLLOWING = (Mode.AUTO, Mode.LAND, Mode.RTL)  # modes that fly the active trajectory
+FOLLOWING = (Mode.AUTO, Mode.LAND, Mode.RTL, Mode.TAKEOFF)  # modes that fly the active trajectory
 
 
 @dataclass

@@ -404,7 +404,7 @@ class GcsService:
             hb = heartbeat(armed)
             mode = mgr.mode if mgr else Mode.IDLE
             hb.custom_mode = REPORTED[mode].custom_mode
-            if mode is Mode.AUTO:
+            if mode in (Mode.AUTO, Mode.TAKEOFF):
                 hb.base_mode |= m2.MAV_MODE_FLAG_AUTO_ENABLED
             if mode is Mode.GUIDED:
                 hb.base_mode |= m2.MAV_MODE_FLAG_GUIDED_ENABLED

@@ -15,5 +15,5 @@ COMMAND: dict[wm.WireMode, Callable[[], c.Command]] = {
 }  # fmt: skip
 REPORTED: dict[Mode, wm.WireMode] = {
     Mode.IDLE: wm.HOLD, Mode.HOLD: wm.HOLD, Mode.AUTO: wm.MISSION, Mode.RTL: wm.RETURN,
-    Mode.LAND: wm.LAND, Mode.GUIDED: wm.OFFBOARD,
+    Mode.LAND: wm.LAND, Mode.GUIDED: wm.OFFBOARD, Mode.TAKEOFF: wm.TAKEOFF,
 }  # fmt: skip

@@ -12,7 +12,8 @@ row (1 = the first sample). Earth NWU (x north, y west, z up), SI units:
   (acceleration, only with velocity), each group all three or none; ``yaw_rad``.
 
 The plain ``t, x, y, z[, yaw]`` (``heli-ground fly``'s header) names the same columns, and a
-flight's ``run.csv`` flies back: its ``t, x, y, z`` (the flown truth), the rest ignored.
+flight's ``run.csv`` flies back: its ``t_s, x_m, y_m, z_m`` (the flown truth; ``t, x, y, z`` in a
+run.csv from before the one schema), the rest ignored.
 
 The interpolant, per axis, by what the table gives:
 
@@ -52,6 +53,7 @@ import numpy.typing as npt
 from scipy.linalg import solve_banded
 
 from autopilot.metrics import CSV_HEADER as RECORD_HEADER
+from autopilot.metrics import LEGACY_CSV_HEADER
 from autopilot.reference import ACC_0, N_REF, POS_0, REF_ACC, REF_POS, REF_VEL, VEL_0
 from autopilot.trajectory.sampled import TimedSamples
 from heli_common.config import ConfigError
@@ -76,9 +78,11 @@ def table_columns(header: list[str]) -> tuple[list[str], list[int] | None]:
     (this one, ``heli-ground fly``'s) reads a header through here."""
     raw = [h.strip().lower() for h in header]
     keep = None
-    if set(RECORD_HEADER) <= set(raw):
-        keep = [raw.index(c) for c in ("t", "x", "y", "z")]
-        raw = [raw[j] for j in keep]
+    for record, truth in ((RECORD_HEADER, REQUIRED), (LEGACY_CSV_HEADER, ("t", "x", "y", "z"))):
+        if set(record) <= set(raw):  # a flight's record (today's run.csv, or one from before)
+            keep = [raw.index(c) for c in truth]
+            raw = [raw[j] for j in keep]
+            break
     return [PLAIN.get(name, name) for name in raw], keep
 
 
