@@ -16,6 +16,7 @@ from collections.abc import Callable
 from typing import Any, ClassVar, Generic, TypeVar
 
 import numpy as np
+from numba.extending import overload
 
 from autopilot.reference import N_REF, REF_POS
 from heli_common.airframe import Airframe, PitchLimits
@@ -82,6 +83,41 @@ def commit(
     diag[D_STATUS] = OK
     return OK
 Kernel = Callable[[Any, FloatArray, FloatArray, FloatArray, bool, FloatArray, FloatArray], int]
+
+# --- one dispatch for every compiled law: by the type of its constants
+
+_LAWS: dict[type, Kernel] = {}
+
+
+def register_law(constants_type: type, kernel: Kernel) -> None:
+    """Make ``kernel`` the law :func:`control_law` runs for constants of ``constants_type``
+    (a NamedTuple: each compiled controller registers its own, once, at import)."""
+    _LAWS[constants_type] = kernel
+
+
+def control_law(
+    kc: Any, state: FloatArray, x: FloatArray, ref: FloatArray, hold: bool, out: FloatArray, diag: FloatArray
+) -> int:
+    """The registered law for ``kc``'s type, one tick. Compiled code that calls this (the
+    in-process loop) is compiled once per law, the call resolved when it is typed: a direct
+    call, no branch on which law, and the machine code cached as any other (numba cannot
+    cache a function that takes another compiled function as an argument)."""
+    return _LAWS[type(kc)](kc, state, x, ref, hold, out, diag)
+
+
+@overload(control_law)
+def _control_law_typed(
+    kc: Any, state: Any, x: Any, ref: Any, hold: Any, out: Any, diag: Any
+) -> Any:
+    law = _LAWS.get(getattr(kc, "instance_class", None))  # type: ignore[arg-type]
+    if law is None:
+        return None
+
+    # numba requires the typing function's signature, annotations included
+    def impl(kc: Any, state: Any, x: Any, ref: Any, hold: Any, out: Any, diag: Any) -> Any:
+        return law(kc, state, x, ref, hold, out, diag)
+
+    return impl
 
 
 class KernelController(ABC, Generic[G]):

@@ -22,7 +22,7 @@ def ref_column(name: str) -> str:
     return f"{base}_ref_{unit}"
 
 
-# run.csv: one schema with the API's tables (Flight.to_pandas, Parquet): SI units last in
+# run.csv: one schema with the API's tables (FlightResult.to_pandas, Parquet): SI units last in
 # every name, the state's names as heli_common.state.STATE_NAMES, each reference beside
 TRACKED = ("x_m", "y_m", "z_m", "phi_rad", "theta_rad", "psi_rad")  # of STATE_NAMES
 CSV_HEADER = (

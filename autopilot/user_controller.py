@@ -20,8 +20,10 @@ the command is held until the next tick. The bench calls ``reset`` while the veh
 disarmed and after a stall.
 
 The bench names a controller by a string, so that one class flies in-process, in the
-autopilot process and in a campaign's workers: ``"tlc"``, ``"pid"``, or
-``"package.module:Class"`` / ``"path/to/file.py:Class"`` for yours.
+autopilot process and in a campaign's workers: ``"tlc"``, ``"pid"``, a name an installed
+package registers (entry point group ``heli_tlc_sitl.controllers``:
+:mod:`autopilot.controller_names`), or ``"package.module:Class"`` /
+``"path/to/file.py:Class"`` for yours.
 
 :class:`UserController` wraps your class with what the bench guarantees around every
 controller: a non-finite input never reaches your code and a non-finite or wrongly shaped
@@ -45,7 +47,7 @@ from typing import Any, ClassVar, Protocol, runtime_checkable
 import numpy as np
 
 from autopilot.control import BAD_INPUT, BAD_OUTPUT, D_SAT_MASK, D_STATUS, N_DIAG, OK
-from autopilot.controller_names import BUILT_IN
+from autopilot.controller_names import BUILT_IN, registered
 from autopilot.reference import N_REF, REF_POS
 from heli_common.airframe import Airframe, PitchLimits
 from heli_common.config import ConfigError
@@ -66,8 +68,8 @@ class Controller(Protocol):
 
 
 def is_user_spec(spec: str) -> bool:
-    """``"module:Class"`` or ``"file.py:Class"``, not a built-in name."""
-    return spec not in BUILT_IN and ":" in spec
+    """``"module:Class"``, ``"file.py:Class"`` or a registered name: not a built-in one."""
+    return spec not in BUILT_IN and (":" in spec or spec in registered())
 
 
 def normalise_spec(spec: str) -> str:
@@ -76,11 +78,14 @@ def normalise_spec(spec: str) -> str:
     Raises :class:`ConfigError` naming what is wrong."""
     if spec in BUILT_IN:
         return spec
-    if not is_user_spec(spec):
-        raise ConfigError(
-            f"controller: expected 'tlc', 'pid', 'package.module:Class' or 'path/to/file.py:Class', "
-            f"got {spec!r}"
-        )
+    if ":" not in spec:
+        names = registered()
+        if spec not in names:
+            others = f", a registered name ({', '.join(sorted(names))})" if names else ""
+            raise ConfigError(f"controller: expected 'tlc', 'pid'{others}, 'package.module:Class' or "
+                              f"'path/to/file.py:Class', got {spec!r}")  # fmt: skip
+        load_class(spec)  # the name stays: every process resolves it the same way
+        return spec
     where, _, cls = spec.rpartition(":")
     if where.endswith(".py"):
         spec = f"{Path(where).resolve()}:{cls}"
@@ -107,8 +112,11 @@ def user_traceback(exc: BaseException) -> str:
 
 
 def load_class(spec: str) -> type[Any]:
-    """The class a ``"module:Class"`` or ``"file.py:Class"`` string names, checked against
-    the contract (``update`` and ``reset``); :class:`ConfigError` names what failed."""
+    """The class a ``"module:Class"`` or ``"file.py:Class"`` string (or a registered name)
+    names, checked against the contract (``update`` and ``reset``); :class:`ConfigError`
+    names what failed."""
+    if ":" not in spec and spec in (names := registered()):
+        spec = names[spec]
     where, _, name = spec.rpartition(":")
     if not where or not name:
         raise ConfigError(f"controller: expected 'module:Class' or 'file.py:Class', got {spec!r}")

@@ -10,7 +10,7 @@ import heli_common  # noqa: F401  (first: one BLAS thread, before numpy loads)
 # The Python API (heli_sitl/api.py), imported on first use: `heli-sitl --help` and the
 # launchers need none of its imports (pandas, the compiled loop).
 _API = ("PID", "TLC", "CampaignCounts", "CampaignResult", "ComparisonResult", "Envelope", "ExitStatus",
-        "Flight", "FlightMetrics", "Linearization", "Trim", "campaign", "compare", "simulate", "trim",
+        "FlightResult", "FlightMetrics", "Linearization", "Trim", "campaign", "compare", "simulate", "trim",
         "linearize", "STATE_LABELS", "REF_LABELS")  # fmt: skip
 
 

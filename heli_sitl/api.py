@@ -71,7 +71,7 @@ class ExitStatus(enum.Enum):
 
     COMPLETED = "completed"  # flown to the end, not lost
     LOST = "lost"  # flown, but the vehicle left the safety envelope (autopilot.envelope), back or not
-    FAILED = "failed"  # the simulation itself raised (see Flight.error)
+    FAILED = "failed"  # the simulation itself raised (see FlightResult.error)
 
     def __str__(self) -> str:
         return self.value
@@ -102,7 +102,7 @@ Controller = TLC | PID
 
 
 @dataclass(frozen=True)
-class Flight:
+class FlightResult:
     """One flight: its time, named state, reference and command arrays, its metrics and how
     it ended. ``record`` is the simulator's own record (every array it keeps)."""
 
@@ -241,7 +241,7 @@ def simulate(
     seed: int | None = None,
     trajectory: str | Path | TrajectoryLike | None = None,
     envelope: Envelope = DEFAULT_ENVELOPE,
-) -> Flight:
+) -> FlightResult:
     """Fly ``scenario`` in-process on ``plant`` in ``world`` (None: the paper's ideal world)
     with ``controller``: a :class:`TLC` or :class:`PID`, "tlc"/"pid" with their shipped
     gains, or your own class (the class, or "package.module:Class" / "path/file.py:Class";
@@ -309,16 +309,16 @@ def simulate(
     try:
         rec = _simulate(sc, opts)
     except (FloatingPointError, np.linalg.LinAlgError, ZeroDivisionError, OverflowError) as exc:
-        return Flight(**what, status=ExitStatus.FAILED, metrics=None, record=None,
+        return FlightResult(**what, status=ExitStatus.FAILED, metrics=None, record=None,
                       error=f"{type(exc).__name__}: {exc}")  # fmt: skip
     except Exception as exc:
         if user is None:  # the bench's own fault: not to be dressed up as a flight's end
             raise
-        return Flight(**what, status=ExitStatus.FAILED, metrics=None, record=None,
+        return FlightResult(**what, status=ExitStatus.FAILED, metrics=None, record=None,
                       error=user_traceback(exc))  # fmt: skip
     m = FlightMetrics.of(rec, envelope=envelope)
     status = ExitStatus.LOST if m.lost else ExitStatus.COMPLETED
-    return Flight(**what, status=status, metrics=m, record=rec)
+    return FlightResult(**what, status=status, metrics=m, record=rec)
 
 
 def _airframe(airframe: str | Path | Airframe | None) -> Airframe:
@@ -465,8 +465,8 @@ __all__ = [
     "CampaignResult",
     "Envelope",
     "ExitStatus",
-    "Flight",
     "FlightMetrics",
+    "FlightResult",
     "Linearization",
     "Trim",
     "campaign",

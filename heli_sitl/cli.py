@@ -90,7 +90,7 @@ def _simulate(args: argparse.Namespace) -> int:
             raise
     record.write_csv(out / "run.csv")
     summary = record.write_summary(out / "summary.json")
-    title = f"{scenario.run.name}, {record.extra['feedforward']}"
+    title = f"{scenario.run.name}, {record.extra['feedforward'] or record.extra['controller']}"
     figs = plot_figures(record.columns(), out, title=title)
     rotor_fig = plot_rotor(record.columns(), out, title=f"{title}, {opts.plant.kind} plant")
     if rotor_fig is not None:

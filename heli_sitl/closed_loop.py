@@ -2,8 +2,9 @@
 
 This loop is the only owner of time here: tick k is at t = k / rate, the controller sees
 the state at t, its pitches are held (zero-order hold) while the plant integrates to t+dt.
-The loop itself is compiled and calls the very kernels the processes use
-(:func:`~autopilot.tlc.controller.tlc_kernel`, :func:`~heli_plant.model.plant_step`, and
+The loop itself is compiled and calls the very kernels the processes use (the controller's,
+dispatched by its constants' type when the loop is compiled:
+:func:`~autopilot.control.control_law`; :func:`~heli_plant.model.plant_step`, and
 :func:`~heli_plant.model.accept_pitches` behind the sim link's rounding,
 :func:`~heli_common.mavlink.sim_protocol.pitches_as_received`); a trajectory is a pure function of time, so
 the references for every tick are sampled up front. What would cross the sim link is
@@ -23,20 +24,16 @@ from typing import Any
 
 import numpy as np
 
+from autopilot.control import KernelController, control_law
 from autopilot.controller_names import BUILT_IN
+from autopilot.controllers import build_kernel_controller
 from autopilot.estimation.config import EstimatorConfig
 from autopilot.estimation.log import N_EST_LOG
 from autopilot.estimation.nav import make_nav_params, nav_init, nav_log, nav_state_size, nav_tick, nav_truth
 from autopilot.metrics import FlightRecord
-from autopilot.pid.controller import PIDConstants, PIDController, pid_kernel
-from autopilot.pid.gains import PidGains, default_pid_gains
+from autopilot.pid.gains import PidGains
 from autopilot.scenario import Scenario
-from autopilot.tlc.controller import (
-    N_DIAG,
-    TLCConstants,
-    TLController,
-    tlc_kernel,
-)
+from autopilot.tlc.controller import N_DIAG, TLController
 from autopilot.user_controller import UserController, is_user_spec
 from heli_common.airframe import PlantConstants
 from heli_common.jit import njit
@@ -131,8 +128,9 @@ def _advance(
 
 @njit
 def _run_ticks(
-    k: TLCConstants,
+    kc: Any,
     ctrl_state: FloatArray,
+    dt_s: float,
     c: PlantConstants,
     lo: FloatArray,
     hi: FloatArray,
@@ -166,14 +164,14 @@ def _run_ticks(
     x_hats: FloatArray,
     est_log: FloatArray,
     loop_s: FloatArray,
-    use_pid: bool,
-    kp: PIDConstants,
-    pid_state: FloatArray,
     g: RotorConstants,
     rotors: FloatArray,
     sim_link: bool = False,
 ) -> FloatArray:
-    """Ticks ``k0`` to ``k1 - 1``. ``sim_link``: round what would cross the sim link as the
+    """Ticks ``k0`` to ``k1 - 1``, the controller being the compiled law registered for the
+    type of its constants ``kc`` (:func:`~autopilot.control.control_law`: numba compiles this
+    loop once per law, each a direct call), over its state ``ctrl_state``.
+    ``sim_link``: round what would cross the sim link as the
     link rounds it (the controller flies on the float32 state, the plant holds the float32
     normalised pitches), so that the flight is a lockstep flight's, bit for bit; off, the
     loop is the exact arithmetic of the model (the tests' equilibria and linearisations)."""
@@ -189,15 +187,12 @@ def _run_ticks(
                           x_hats, est_log, loop_s, g)  # fmt: skip
         elif sim_link:
             xc = state_as_received(x)
-        if use_pid:
-            pid_kernel(kp, pid_state, xc, refs[i], False, out, diag)
-        else:
-            tlc_kernel(k, ctrl_state, xc, refs[i], False, out, diag)
+        control_law(kc, ctrl_state, xc, refs[i], False, out, diag)
         xs[i] = x
         us[i] = out
         diags[i] = diag
         if i < n_last:
-            x = _advance(i, t, x, out, lo, hi, held, c, n_sub, k.dt_s, in_world, air, wp, ws, servo_p,
+            x = _advance(i, t, x, out, lo, hi, held, c, n_sub, dt_s, in_world, air, wp, ws, servo_p,
                          servo_s, dryden, airs, applied, loop_s, g, rotors, sim_link)  # fmt: skip
     return x
 
@@ -208,15 +203,19 @@ def simulate(
     run = scenario.run
     rate_hz = opts.rate_hz or run.rate_hz
     duration = opts.duration_s or run.duration_s
-    ctrl = TLController(scenario.airframe, scenario.gains, rate_hz, opts.feedforward or run.feedforward)
     kind = opts.controller
-    user = None
+    # the one controller flown: a compiled one (its kernel passed into the compiled loop), or
+    # a user's class called tick by tick around the same compiled plant and sensing steps
+    user: UserController | None = None
+    ctrl: KernelController[Any] | None = None
     if not isinstance(kind, str) or is_user_spec(kind):
         user = UserController(kind, scenario.airframe, rate_hz, strict=True)
-    elif kind not in BUILT_IN:
+    elif kind in BUILT_IN:
+        ctrl = build_kernel_controller(kind, scenario.airframe, scenario.gains, rate_hz,
+                                       opts.feedforward or run.feedforward, opts.pid_gains)  # fmt: skip
+    else:
         raise ValueError(f"controller must be tlc, pid or module:Class, got {kind!r}")
-    use_pid = kind == "pid"
-    pid = PIDController(scenario.airframe, opts.pid_gains or default_pid_gains(), rate_hz)
+    dt_s = 1.0 / rate_hz
     plant = Plant(
         scenario.airframe,
         scenario.initial.state().to_array(),
@@ -244,25 +243,25 @@ def simulate(
     if plant.world is not None:
         # the servos start where the first command puts them, as in the plant process; that
         # command answers the state the controller sees first (the estimate, from sensors)
-        flying: TLController | PIDController | UserController = user or (pid if use_pid else ctrl)
         x_first = sn.first_estimate(plant) if sn.on else as_received(x)
-        if isinstance(flying, UserController):
-            first = copy.deepcopy(flying).update(0.0, x_first, refs[0])
+        if ctrl is not None:
+            first = ctrl.trial_update(0.0, x_first, refs[0])
         else:
-            first = flying.trial_update(0.0, x_first, refs[0])
+            assert user is not None
+            first = copy.deepcopy(user).update(0.0, x_first, refs[0])
         u0 = plant.u.copy()
         pitches_as_received(first, plant.lo, plant.hi, u0)
         plant.world.prepare(1.0 / rate_hz / plant.substeps, u0, np.column_stack([plant.lo, plant.hi]))
 
 
-    def ticks(k0: int, k1: int, state: FloatArray, held: FloatArray, ws: FloatArray, servo_s: FloatArray,
-              x: FloatArray, sns: FloatArray, meas: FloatArray, est: FloatArray,
-              loop_s: FloatArray, pid_state: FloatArray) -> FloatArray:  # fmt: skip
+    def ticks(c: KernelController[Any], k0: int, k1: int, state: FloatArray, held: FloatArray,
+              ws: FloatArray, servo_s: FloatArray, x: FloatArray, sns: FloatArray, meas: FloatArray,
+              est: FloatArray, loop_s: FloatArray) -> FloatArray:  # fmt: skip
         return _run_ticks(
-            ctrl.constants, state, plant.constants, plant.lo, plant.hi, held, x, refs, t, k0, k1, n,
-            plant.substeps, xs, us, diags, plant.world is not None, w.air, w.wp, ws, w.servo_p,
+            c.constants, state, dt_s, plant.constants, plant.lo, plant.hi, held, x, refs, t,
+            k0, k1, n, plant.substeps, xs, us, diags, plant.world is not None, w.air, w.wp, ws, w.servo_p,
             servo_s, w.dryden, airs, applied, sn.on, sn.snp, sns, meas, sn.home, sn.eparams, est,
-            sn.x_hats, sn.log, loop_s, use_pid, pid.constants, pid_state, g, rotors, True,
+            sn.x_hats, sn.log, loop_s, g, rotors, True,
         )  # fmt: skip
 
     def user_ticks(u: UserController, k0: int, k1: int, held: FloatArray, ws: FloatArray, servo_s: FloatArray,
@@ -284,7 +283,7 @@ def simulate(
             diags[i] = u.diag
             if i < n:
                 x = _advance(i, t, x, out, plant.lo, plant.hi, held, plant.constants, plant.substeps,
-                             ctrl.constants.dt_s, in_world, w.air, w.wp, ws, w.servo_p, servo_s, w.dryden,
+                             dt_s, in_world, w.air, w.wp, ws, w.servo_p, servo_s, w.dryden,
                              airs, applied, loop_s, g, rotors, True)  # fmt: skip
         return x
 
@@ -292,9 +291,10 @@ def simulate(
     # load (or compile) the kernels outside the timed flight, on throwaway copies
     warm = (plant.u.copy(), w.ws.copy(), w.servo_s.copy(), x, sn.sns.copy(), sn.meas.copy(), sn.est.copy(),
             loop_s.copy())  # fmt: skip
-    if user is None:
-        ticks(0, 1, ctrl.state.copy(), *warm, pid.state.copy())
+    if ctrl is not None:
+        ticks(ctrl, 0, 1, ctrl.state.copy(), *warm)
     else:
+        assert user is not None
         user_ticks(copy.deepcopy(user), 0, 1, *warm)
     wall0 = time.perf_counter()
     # chunks only where someone watches the progress: each compiled call checks its ~40
@@ -302,19 +302,20 @@ def simulate(
     chunk = CHUNK_TICKS if progress is not None else n + 1
     for k0 in range(0, n + 1, chunk):
         k1 = min(n + 1, k0 + chunk)
-        if user is None:
-            x = ticks(k0, k1, ctrl.state, plant.u, w.ws, w.servo_s, x, sn.sns, sn.meas, sn.est, loop_s,
-                      pid.state)  # fmt: skip
+        if ctrl is not None:
+            x = ticks(ctrl, k0, k1, ctrl.state, plant.u, w.ws, w.servo_s, x, sn.sns, sn.meas, sn.est, loop_s)
         else:
+            assert user is not None
             x = user_ticks(user, k0, k1, plant.u, w.ws, w.servo_s, x, sn.sns, sn.meas, sn.est, loop_s)
         if progress is not None:
             progress(k1 - 1, n)
     wall = time.perf_counter() - wall0
     extra: dict[str, object] = {
-        "scenario": run.name, "rate_hz": rate_hz, "feedforward": ctrl.feedforward.value,
+        "scenario": run.name, "rate_hz": rate_hz,
+        "feedforward": ctrl.feedforward.value if isinstance(ctrl, TLController) else None,
         "plant_substeps": plant.substeps,
-        "gains": user.name if user else pid.gains.name if use_pid else scenario.gains.name,
-        "controller": user.spec if user else kind,
+        "gains": ctrl.gains.name if ctrl is not None else user.name if user is not None else "",
+        "controller": user.spec if user is not None else kind,
         "error_windows_s": [list(w) for w in run.error_windows_s],
     }  # fmt: skip
     extra["plant"] = plant.model.kind

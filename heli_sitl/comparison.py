@@ -286,7 +286,7 @@ def estimator_for(world: str) -> EstimatorConfig:
 
 
 @dataclass(frozen=True)
-class Flight:
+class FlightCase:
     """One flight of the comparison: who, on which plant, what, in which world, which seed."""
 
     contender: Contender
@@ -297,7 +297,7 @@ class Flight:
     max_speed_m_s: float = 0.0
 
 
-def fly_record(f: Flight) -> tuple[Scenario, FlightRecord]:
+def fly_record(f: FlightCase) -> tuple[Scenario, FlightRecord]:
     sc = scenario_for(f.scenario, f.contender, f.max_speed_m_s)
     w = dataclasses.replace(World.load(f.world), seed=f.seed) if f.world else None
     if w is not None:
@@ -312,7 +312,7 @@ def fly_record(f: Flight) -> tuple[Scenario, FlightRecord]:
     return sc, simulate(sc, opts)
 
 
-def fly(f: Flight) -> FlightScore:
+def fly(f: FlightCase) -> FlightScore:
     """One flight's score; a flight that raises is lost (its error kept out of the numbers)."""
     try:
         sc, rec = fly_record(f)
@@ -744,7 +744,7 @@ def run_compare(
     n_workers = workers or os.cpu_count() or 1
     with engine.cluster(n_workers, None) as client:
 
-        def fly_all(flights: list[Flight]) -> list[FlightScore]:
+        def fly_all(flights: list[FlightCase]) -> list[FlightScore]:
             return list(client.gather(client.map(fly, flights, pure=False)))
 
         for plant in spec.plants:
@@ -759,7 +759,7 @@ def run_compare(
             pres: dict[str, Any] = {}
             # one flight each in calm air (or the trajectory's own world): deterministic
             det = [(tr, c) for tr in spec.trajectories for c in contenders]
-            scores = fly_all([Flight(c, plant, tr.name, tr.world, 1, speed) for tr, c in det])
+            scores = fly_all([FlightCase(c, plant, tr.name, tr.world, 1, speed) for tr, c in det])
             traj: dict[str, dict[str, FlightScore]] = {}
             for (tr, c), sc in zip(det, scores, strict=True):
                 traj.setdefault(tr.name + (f" ({tr.world})" if tr.world else ""), {})[c.label] = sc
@@ -779,7 +779,7 @@ def run_compare(
             sd = mc_seeds(spec.seeds)
             jobs = [(title, c, seed) for title, _, _ in sets for c in contenders for seed in sd]
             where = {title: (scn, w) for title, scn, w in sets}
-            mc_scores = fly_all([Flight(c, plant, *where[t], seed, speed) for t, c, seed in jobs])
+            mc_scores = fly_all([FlightCase(c, plant, *where[t], seed, speed) for t, c, seed in jobs])
             by_set: dict[str, dict[str, list[FlightScore]]] = {}
             for (title, c, _), sc in zip(jobs, mc_scores, strict=True):
                 by_set.setdefault(title, {}).setdefault(c.label, []).append(sc)

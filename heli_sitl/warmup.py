@@ -26,6 +26,7 @@ class _Hold:
 
 def main() -> None:
     t0 = time.perf_counter()
+    from autopilot.controller_names import BUILT_IN
     from autopilot.scenario import Scenario
     from heli_common import frames
     from heli_plant.contact import apply_ground_contact
@@ -33,7 +34,8 @@ def main() -> None:
     from heli_sitl.closed_loop import SimOptions, simulate
 
     sc = Scenario.load("paper")
-    simulate(sc, SimOptions(duration_s=0.1))
+    for kind in BUILT_IN:  # the compiled loop, once per controller kernel it receives
+        simulate(sc, SimOptions(duration_s=0.1, controller=kind))
     x = sc.initial.state().to_array()
     f = frames.state_to_ned_fields(x)
     frames.state_from_ned_fields(*f[0:6].tolist(), *f[10:16].tolist())

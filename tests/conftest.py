@@ -19,8 +19,6 @@ from hypothesis import settings
 from xdist.remote import Producer
 from xdist.workermanage import WorkerController
 
-from autopilot.pid.controller import PIDController
-from autopilot.pid.gains import PidGains
 from autopilot.reference import N_REF
 from autopilot.tlc.controller import N_DIAG, TLCConstants, TLController
 from autopilot.tlc.gains import Gains
@@ -84,8 +82,6 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
 
 
 RATE_HZ = 100.0
-# the compiled loop flies the TLC here; the PID's arrays are there for its signature only
-PID_OFF = PIDController(Airframe.load(), PidGains.load(), RATE_HZ)
 HOVER_ALT_M = 50.0  # far from the ground plane (contact would level the attitude)
 HOVER_PSI_RAD = 0.3
 SETTLE_S = 400.0  # the slowest closed-loop mode (loop 1) decays as exp(-0.13 t)
@@ -107,7 +103,7 @@ def gains() -> Gains:
 
 
 @dataclass
-class Flight:
+class TickRecord:
     x: FloatArray  # (n+1, 12) state at each tick
     u: FloatArray  # (n+1, 4) pitches commanded at each tick
     diag: FloatArray  # (n+1, N_DIAG)
@@ -121,7 +117,7 @@ def fly(
     plant: Plant,
     x0: FloatArray,
     refs: FloatArray,
-) -> Flight:
+) -> TickRecord:
     """Closed loop over len(refs) ticks from ``x0``; ``ctrl_state`` is updated in place.
 
     After the call, (``x_next``, ``ctrl_state``) is the closed-loop state one period after
@@ -135,13 +131,13 @@ def fly(
     held = np.zeros(N_PITCH)
     w = CalmArrays()  # the paper's ideal world
     x_next = _run_ticks(
-        k, ctrl_state, plant.constants, plant.lo, plant.hi, held, np.asarray(x0, dtype=float),
-        refs, t, 0, n + 1, n + 1, plant.substeps, xs, us, diags, False, w.air, w.wp, w.ws,
-        w.servo_p, w.servo_s, w.dryden, np.zeros((n + 1, 3)), np.zeros((n + 1, N_PITCH)),
-        *SensingArrays.off().args(), np.zeros(1), False, PID_OFF.constants, PID_OFF.state.copy(), ROTOR_OFF,
+        k, ctrl_state, k.dt_s, plant.constants, plant.lo, plant.hi, held,
+        np.asarray(x0, dtype=float), refs, t, 0, n + 1, n + 1, plant.substeps, xs, us, diags, False, w.air,
+        w.wp, w.ws, w.servo_p, w.servo_s, w.dryden, np.zeros((n + 1, 3)), np.zeros((n + 1, N_PITCH)),
+        *SensingArrays.off().args(), np.zeros(1), ROTOR_OFF,
         np.zeros((1, N_ROTOR + 1)), False,  # sim_link off: the model's exact arithmetic
     )  # fmt: skip
-    return Flight(xs, us, diags, t, x_next)
+    return TickRecord(xs, us, diags, t, x_next)
 
 
 def hover_refs(pos: FloatArray, seconds: float, rate_hz: float = RATE_HZ) -> FloatArray:

@@ -34,11 +34,11 @@ def test_one_line_from_a_shell_prints_the_papers_figure() -> None:
 
 
 @pytest.fixture(scope="module")
-def paper() -> hs.Flight:
+def paper() -> hs.FlightResult:
     return hs.simulate()
 
 
-def test_a_flight_is_the_simulators_flight_with_named_arrays(paper: hs.Flight) -> None:
+def test_a_flight_is_the_simulators_flight_with_named_arrays(paper: hs.FlightResult) -> None:
     rec = simulate(Scenario.load("paper"), SimOptions())
     np.testing.assert_array_equal(paper.state, rec.x)
     np.testing.assert_array_equal(paper.pitches, rec.pitches)
@@ -50,7 +50,7 @@ def test_a_flight_is_the_simulators_flight_with_named_arrays(paper: hs.Flight) -
     assert paper.status is hs.ExitStatus.COMPLETED and paper.controller == "TLC" and paper.world == "ideal"
 
 
-def test_the_metrics_are_the_campaigns_row_and_the_summarys(paper: hs.Flight) -> None:
+def test_the_metrics_are_the_campaigns_row_and_the_summarys(paper: hs.FlightResult) -> None:
     """One parser: the API's metrics, a campaign's columns and the summary agree exactly."""
     m = paper.metrics
     assert m is not None and paper.record is not None
@@ -62,7 +62,7 @@ def test_the_metrics_are_the_campaigns_row_and_the_summarys(paper: hs.Flight) ->
     assert m.converged and not m.lost and 0.0 <= m.saturated_fraction < 0.01
 
 
-def test_save_writes_the_columns_and_what_flew(paper: hs.Flight, tmp_path: Path) -> None:
+def test_save_writes_the_columns_and_what_flew(paper: hs.FlightResult, tmp_path: Path) -> None:
     import pyarrow.parquet as pq
 
     d = paper.save(tmp_path / "f")

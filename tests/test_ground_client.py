@@ -463,7 +463,7 @@ def test_signed_vehicle_refuses_unsigned_changes_but_telemetry_flows(tmp_path: P
 
 
 @dataclass
-class Flight:
+class MissionFlight:
     items: list[MissionItem]
     t: np.ndarray = field(default_factory=lambda: np.zeros(0))  # vehicle time [s]
     pos: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # NWU [m]
@@ -475,9 +475,9 @@ class Flight:
 
 
 @pytest.fixture(scope="module")
-def flown() -> Flight:
+def flown() -> MissionFlight:
     """Fly the square mission from the ground once; the tests below look at the record."""
-    flight = Flight(square_mission())
+    flight = MissionFlight(square_mission())
     rows: list[tuple[float, float, float, float]] = []
 
     def record(m: Message) -> None:
@@ -508,7 +508,7 @@ def flown() -> Flight:
 
 
 @pytest.mark.slow
-def test_flown_mission_passes_within_1m_of_every_waypoint(flown: Flight) -> None:
+def test_flown_mission_passes_within_1m_of_every_waypoint(flown: MissionFlight) -> None:
     report = []
     for it in flown.items:
         target = target_nwu(it) if it.command != ms.CMD_LAND else np.array([math.nan, math.nan, 0.0])
@@ -526,7 +526,7 @@ def test_flown_mission_passes_within_1m_of_every_waypoint(flown: Flight) -> None
 
 
 @pytest.mark.slow
-def test_flown_mission_reports_every_item_reached(flown: Flight) -> None:
+def test_flown_mission_reports_every_item_reached(flown: MissionFlight) -> None:
     """MISSION_ITEM_REACHED for every item, the last included: ground stations (MAVSDK's
     mission progress, QGroundControl) only call a mission finished on the last one."""
     assert sorted(flown.reached) == list(range(len(flown.items))), (

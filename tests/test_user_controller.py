@@ -4,6 +4,7 @@ autopilot process and in a campaign; a faulty one never reaches a servo with a b
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -12,8 +13,9 @@ import numpy as np
 import pytest
 
 import heli_sitl as hs
+from autopilot.controller_names import ENTRY_POINT_GROUP, registered
 from autopilot.scenario import Scenario
-from autopilot.user_controller import UserController, load_class, normalise_spec
+from autopilot.user_controller import UserController, is_user_spec, load_class, normalise_spec
 from heli_common.config import ConfigError
 from heli_common.world import World
 from heli_sitl.closed_loop import SimOptions, simulate
@@ -24,6 +26,41 @@ HERE = Path(__file__).resolve().parent
 LQR = f"{ROOT / 'docs/examples/lqr_hover.py'}:LqrHover"
 USER = f"{HERE / 'user_controllers.py'}"
 LQR_RMS_45_M = 0.0294  # the paper scenario, ideal world, in-process (README, docs/controllers.md)
+REGISTERED = "lqr-hover"  # the name the package of the fixture below registers
+
+
+@pytest.fixture
+def lqr_package(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    """An installed package outside the bench that registers the LQR example by name: its
+    module and its distribution's entry point (what ``pip install`` of a package whose
+    pyproject.toml has ``[project.entry-points."heli_tlc_sitl.controllers"]`` leaves), on
+    this process's path and on its children's."""
+    site = tmp_path / "site"
+    info = site / "toy_laws-0.1.dist-info"
+    info.mkdir(parents=True)
+    (site / "toy_laws.py").write_text((ROOT / "docs/examples/lqr_hover.py").read_text())
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: toy-laws\nVersion: 0.1\n")
+    (info / "entry_points.txt").write_text(
+        f"[{ENTRY_POINT_GROUP}]\n{REGISTERED} = toy_laws:LqrHover\ntlc = toy_laws:LqrHover\n")
+    monkeypatch.syspath_prepend(str(site))
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(site), os.environ.get("PYTHONPATH", "")]))
+    return site
+
+
+def test_a_registered_controller_flies_by_its_name(lqr_package: Path) -> None:
+    """The entry point group is the registry's third source, beside the built-in names and
+    module:Class: the name flies the very flight its class does; a built-in name is never
+    shadowed (the package's ``tlc`` entry is ignored); an unknown name lists the registered."""
+    assert registered() == {REGISTERED: "toy_laws:LqrHover"}
+    assert normalise_spec(REGISTERED) == REGISTERED and is_user_spec(REGISTERED) and not is_user_spec("tlc")
+    by_name = hs.simulate(controller=REGISTERED, duration_s=20.0)
+    by_class = hs.simulate(controller=f"{lqr_package / 'toy_laws.py'}:LqrHover", duration_s=20.0)
+    assert by_name.record is not None and by_class.record is not None
+    np.testing.assert_array_equal(by_name.record.x, by_class.record.x)
+    assert by_name.controller == "LQR about hover" and by_name.status is hs.ExitStatus.COMPLETED
+    assert hs.simulate(controller="tlc", duration_s=1.0).controller.startswith("TLC")
+    with pytest.raises(ConfigError, match=r"a registered name \(lqr-hover\)"):
+        normalise_spec("lqr-hovr")
 
 
 @pytest.mark.parametrize("world", [None, "everything", "noisy"])
@@ -52,11 +89,13 @@ def test_the_lqr_example_flies_the_paper_scenario_in_process() -> None:
 
 
 @pytest.mark.processes
-def test_the_lqr_example_flies_in_lockstep_processes_as_in_process(tmp_path: Path) -> None:
-    """The autopilot process loads the user's class from --controller: the same flight."""
-    summary = run_demo(DemoOptions(mode="lockstep", out=tmp_path, timeout_s=300, via_ground=False,
-                                   extra_autopilot_args=("--controller", LQR)))  # fmt: skip
-    assert summary["controller"] == normalise_spec(LQR) and summary["gains"] == "LQR about hover"
+def test_the_lqr_example_flies_in_lockstep_processes_as_in_process(tmp_path: Path, lqr_package: Path) -> None:
+    """The autopilot process loads the user's class from --controller, here by the name its
+    package registers (the file's ``module:Class`` flies over processes in
+    test_user_controller_realtime): the same flight."""
+    summary = run_demo(DemoOptions(mode="lockstep", out=tmp_path / "run", timeout_s=300, via_ground=False,
+                                   extra_autopilot_args=("--controller", REGISTERED)))  # fmt: skip
+    assert summary["controller"] == REGISTERED and summary["gains"] == "LQR about hover"
     rms = summary["rms_pos_err_m"]
     assert isinstance(rms, dict)
     assert rms["45-120"] == pytest.approx(LQR_RMS_45_M, abs=2e-4)  # float32 on the sim link

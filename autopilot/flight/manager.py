@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from autopilot.flight import commands as c
-from autopilot.flight.modes import LANDED_ALT_M, Flight, Mode, landed
+from autopilot.flight.modes import LANDED_ALT_M, FlightStateMachine, Mode, landed
 from autopilot.reference import N_REF, REF_POS
 from autopilot.trajectory.base import Trajectory
 from autopilot.trajectory.waypoints import FlightLimits, WaypointTrajectory
@@ -70,7 +70,7 @@ class FlightManager:
 
     def __init__(self, cfg: FlightConfig, mission: Callable[[], tuple[MissionItem, ...]] = tuple) -> None:
         self.cfg = cfg
-        self.flight = Flight()
+        self.flight = FlightStateMachine()
         self._mission = mission
         self.offboard_timeout_s = cfg.offboard_timeout_s
         self.mission_on_arm = False  # mission mode selected while disarmed

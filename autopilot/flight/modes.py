@@ -75,7 +75,7 @@ class Brake:
 BRAKE_ACC_M_S2 = 0.5  # gentle: about 0.05 rad of tilt
 
 
-class Flight:
+class FlightStateMachine:
     """The vehicle's flight state machine (arming, mode, active trajectory).
 
     Every switch of reference starts where the last reference was: a new trajectory or a

@@ -24,6 +24,7 @@ from autopilot.control import (
     all_finite,
     commit,
     refuse,
+    register_law,
 )
 from autopilot.pid.gains import PidGains
 from autopilot.reference import ACC_0 as REF_ACC
@@ -212,3 +213,6 @@ class PIDController(KernelController[PidGains]):
     @staticmethod
     def kernel() -> Kernel:
         return pid_kernel  # type: ignore[no-any-return]
+
+
+register_law(PIDConstants, pid_kernel)  # the compiled loop's dispatch (autopilot.control.control_law)

@@ -30,6 +30,7 @@ from autopilot.control import (
     all_finite,
     commit,
     refuse,
+    register_law,
 )
 from autopilot.reference import ACC_0 as REF_ACC
 from autopilot.reference import POS_0 as REF_POS
@@ -347,6 +348,9 @@ class TLController(KernelController[Gains]):
     @staticmethod
     def kernel() -> Kernel:
         return tlc_kernel  # type: ignore[no-any-return]
+
+
+register_law(TLCConstants, tlc_kernel)  # the compiled loop's dispatch (autopilot.control.control_law)
 
 
 __all__ = ["BAD_INPUT", "BAD_OUTPUT", "D_PHI_C", "D_PSI_C", "D_SAT_MASK", "D_STATUS", "D_THETA_C",

@@ -33,7 +33,7 @@ import pyarrow.parquet as pq
 from heli_common.threads import SINGLE_THREAD_ENV, one_blas_thread
 from heli_sitl.campaigns import report
 from heli_sitl.campaigns.flight import fly, warm
-from heli_sitl.campaigns.settings import Flight
+from heli_sitl.campaigns.settings import FlightSetup
 from heli_sitl.campaigns.spec import CampaignSpec
 
 PARTS = "parts"
@@ -69,7 +69,7 @@ def schema(spec: CampaignSpec) -> pa.Schema:
     return pa.schema(fields)
 
 
-def warm_worker(base: Flight) -> None:
+def warm_worker(base: FlightSetup) -> None:
     """Run on every worker as the cluster starts: imports and compiled code loaded before
     the first batch (counted in the cluster's start, not in the flights' pace)."""
     one_blas_thread()
@@ -78,7 +78,7 @@ def warm_worker(base: Flight) -> None:
 
 
 def run_batch(
-    spec: CampaignSpec, base: Flight, ids: list[int], rows: list[list[float]]
+    spec: CampaignSpec, base: FlightSetup, ids: list[int], rows: list[list[float]]
 ) -> list[dict[str, Any]]:
     """A task: fly these samples one after the other (in a worker process)."""
     one_blas_thread()
@@ -225,7 +225,7 @@ def cluster(workers: int, scheduler: str | None) -> Iterator[Any]:
 
 def run(
     spec: CampaignSpec,
-    base: Flight,
+    base: FlightSetup,
     table: np.ndarray,
     out: Path,
     workers: int,

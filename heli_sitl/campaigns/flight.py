@@ -10,7 +10,7 @@ from typing import Any
 
 from autopilot.flight_metrics import FlightMetrics
 from autopilot.metrics import FlightRecord
-from heli_sitl.campaigns.settings import Flight, apply
+from heli_sitl.campaigns.settings import FlightSetup, apply
 from heli_sitl.campaigns.spec import CampaignSpec
 from heli_sitl.closed_loop import SimOptions, simulate
 
@@ -46,20 +46,20 @@ def metrics(rec: FlightRecord, spec: CampaignSpec) -> dict[str, Any]:
     return {k: row[k] for k in spec.metrics}
 
 
-def options(f: Flight, duration_s: float | None) -> SimOptions:
+def options(f: FlightSetup, duration_s: float | None) -> SimOptions:
     """The in-process flight of ``f`` (for ``duration_s``, None: the scenario's)."""
     return SimOptions(world=f.world, estimator=f.estimator, duration_s=duration_s,
                       controller=f.controller, pid_gains=f.pid_gains, plant=f.plant)  # fmt: skip
 
 
-def warm(base: Flight) -> None:
+def warm(base: FlightSetup) -> None:
     """Load the compiled code a campaign's flights run (numba's cache, ~1 s per process) with
     a flight of a few ticks, so that a worker's first batch is flown at its full pace."""
     simulate(base.scenario, options(base, 0.05))
 
 
 def fly(
-    spec: CampaignSpec, base: Flight, sample_id: int, keys: tuple[str, ...], values: list[float]
+    spec: CampaignSpec, base: FlightSetup, sample_id: int, keys: tuple[str, ...], values: list[float]
 ) -> dict[str, Any]:
     """One row: the sample id, its values, its seed, the metrics (or the error), and the
     flight's wall time (the only value that differs between two runs of a campaign)."""

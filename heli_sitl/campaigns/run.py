@@ -35,20 +35,20 @@ from heli_sitl.campaigns import engine, report
 from heli_sitl.campaigns.counts import CampaignCounts
 from heli_sitl.campaigns.flight import METRIC_DOC
 from heli_sitl.campaigns.sampling import sample_table
-from heli_sitl.campaigns.settings import Flight, canonical, check
+from heli_sitl.campaigns.settings import FlightSetup, canonical, check
 from heli_sitl.campaigns.spec import CampaignSpec, Vary, load_campaign
 
 ID_FILE = "campaign-id.json"
 
 
-def base_flight(spec: CampaignSpec) -> Flight:
+def base_flight(spec: CampaignSpec) -> FlightSetup:
     sc = Scenario.load(spec.scenario, gains=spec.gains or None)
     if spec.feedforward:
         sc = dataclasses.replace(sc, run=dataclasses.replace(sc.run, feedforward=spec.feedforward))
     world = World.load(spec.world) if spec.world else World()
     est = EstimatorConfig.load(spec.estimator) if spec.estimator else EstimatorConfig()
     pid = PidGains.load(spec.pid_gains) if spec.pid_gains else None
-    return Flight(sc, world, est, spec.controller, pid, PlantModel.load(spec.plant))
+    return FlightSetup(sc, world, est, spec.controller, pid, PlantModel.load(spec.plant))
 
 
 def _probes(v: Vary) -> list[float]:
@@ -61,7 +61,7 @@ def _probes(v: Vary) -> list[float]:
 
 def prepare(
     path: str | Path | CampaignSpec, samples: int | None = None, controller: str | None = None
-) -> tuple[CampaignSpec, Flight, np.ndarray]:
+) -> tuple[CampaignSpec, FlightSetup, np.ndarray]:
     """The checked campaign (a file, a name, or a spec already loaded), its base flight and
     its sample table; ConfigError naming the key for anything wrong, before a single flight.
     ``controller`` overrides the file's."""

@@ -64,7 +64,7 @@ T = TypeVar("T")
 
 
 @dataclass(frozen=True)
-class Flight:
+class FlightSetup:
     """Everything one flight needs, as the in-process simulator and the launchers take it."""
 
     scenario: Scenario
@@ -140,7 +140,7 @@ def _rebuilt(obj: T, values: dict[str, float]) -> T:
     return build(type(obj), t, f"campaign: {next(iter(values)).split('.')[0]}")
 
 
-def apply(base: Flight, values: dict[str, float]) -> Flight:
+def apply(base: FlightSetup, values: dict[str, float]) -> FlightSetup:
     """``base`` with each setting (full names, see :func:`canonical`) set."""
     by_root: dict[str, dict[str, float]] = {}
     for key, v in values.items():
@@ -175,7 +175,7 @@ def apply(base: Flight, values: dict[str, float]) -> Flight:
             raise ConfigError(f"{key}: the paper's plant has no rotor constants to vary; fly a plant with "
                               'a rotor (plant = "gavrilets")')  # fmt: skip
         plant = dataclasses.replace(plant, rotor=_rebuilt(plant.rotor, by_root["plant"]))
-    return Flight(sc, world, est, base.controller, pid, plant)
+    return FlightSetup(sc, world, est, base.controller, pid, plant)
 
 
 def _initial(sc: Scenario, values: dict[str, float]) -> InitialState:
@@ -199,7 +199,7 @@ def _initial(sc: Scenario, values: dict[str, float]) -> InitialState:
     return build(InitialState, t, "campaign: initial")
 
 
-def check(base: Flight, key: str, probes: list[float]) -> None:
+def check(base: FlightSetup, key: str, probes: list[float]) -> None:
     """Refuse a setting that does not exist, or whose probe values are out of range."""
     full = canonical(key)
     for v in probes:

@@ -19,11 +19,11 @@ from heli_common.config import as_table, read_toml, to_toml
 from heli_sitl.campaigns import engine
 from heli_sitl.campaigns.flight import flight_seed
 from heli_sitl.campaigns.run import prepare
-from heli_sitl.campaigns.settings import Flight, apply
+from heli_sitl.campaigns.settings import FlightSetup, apply
 from heli_sitl.demo import DemoError, DemoOptions, run_demo
 
 
-def write_files(f: Flight, base_scenario: Path, d: Path) -> dict[str, Path]:
+def write_files(f: FlightSetup, base_scenario: Path, d: Path) -> dict[str, Path]:
     """The sample's scenario, gains, world and estimator as files the launchers read."""
     d.mkdir(parents=True, exist_ok=True)
     gains = as_table(f.scenario.gains)
