@@ -22,6 +22,6 @@ def registered() -> dict[str, str]:
     """The controllers installed packages register, name -> ``"module:Class"`` (read from the
     entry points each time: a test or a session may install one; a built-in name is never
     shadowed)."""
-    from importlib.metadata import entry_points
+    from heli_common.user_class import registered as in_group
 
-    return {ep.name: ep.value for ep in entry_points(group=ENTRY_POINT_GROUP) if ep.name not in BUILT_IN}
+    return in_group(ENTRY_POINT_GROUP, BUILT_IN)

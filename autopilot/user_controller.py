@@ -36,11 +36,8 @@ vehicle's autopilot.
 
 from __future__ import annotations
 
-import importlib
-import importlib.util
 import logging
 import math
-import sys
 from pathlib import Path
 from typing import Any, ClassVar, Protocol, runtime_checkable
 
@@ -49,6 +46,7 @@ import numpy as np
 from autopilot.control import BAD_INPUT, BAD_OUTPUT, D_SAT_MASK, D_STATUS, N_DIAG, OK
 from autopilot.controller_names import BUILT_IN, registered
 from autopilot.reference import N_REF, REF_POS
+from heli_common import user_class
 from heli_common.airframe import Airframe, PitchLimits
 from heli_common.config import ConfigError
 from heli_common.state import N_PITCH, N_STATE, FloatArray
@@ -86,9 +84,7 @@ def normalise_spec(spec: str) -> str:
                               f"'path/to/file.py:Class', got {spec!r}")  # fmt: skip
         load_class(spec)  # the name stays: every process resolves it the same way
         return spec
-    where, _, cls = spec.rpartition(":")
-    if where.endswith(".py"):
-        spec = f"{Path(where).resolve()}:{cls}"
+    spec = user_class.absolute_spec(spec)
     load_class(spec)
     return spec
 
@@ -117,57 +113,12 @@ def load_class(spec: str) -> type[Any]:
     names what failed."""
     if ":" not in spec and spec in (names := registered()):
         spec = names[spec]
-    where, _, name = spec.rpartition(":")
-    if not where or not name:
-        raise ConfigError(f"controller: expected 'module:Class' or 'file.py:Class', got {spec!r}")
-    try:
-        module = _import(where)
-    except ConfigError:
-        raise
-    except Exception as exc:  # the user's module raised on import: say so, with its own words
-        what = f"{type(exc).__name__}: {exc}"
-        raise ConfigError(f"controller {spec!r}: importing {where} raised {what}") from exc
-    cls = getattr(module, name, None)
-    if not isinstance(cls, type):
-        raise ConfigError(f"controller {spec!r}: {where} has no class {name!r}")
+    cls = user_class.load_class(spec, "controller")
     missing = [m for m in ("update", "reset") if not callable(getattr(cls, m, None))]
     if missing:
         raise ConfigError(f"controller {spec!r}: the class lacks {' and '.join(missing)}() (see "
                           f"autopilot.user_controller for the contract)")  # fmt: skip
     return cls
-
-
-def _import(where: str) -> Any:
-    if where.endswith(".py"):
-        path = Path(where).resolve()
-        if not path.is_file():
-            raise ConfigError(f"controller: no file {path}")
-        mod_name = f"heli_user_controller_{abs(hash(str(path)))}"
-        if mod_name in sys.modules:
-            return sys.modules[mod_name]
-        spec = importlib.util.spec_from_file_location(mod_name, path)
-        if spec is None or spec.loader is None:
-            raise ConfigError(f"controller: cannot load {path} as a module")
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[mod_name] = module  # before exec: dataclasses and pickling look it up
-        try:
-            spec.loader.exec_module(module)
-        except BaseException:
-            del sys.modules[mod_name]
-            raise
-        return module
-    try:
-        return importlib.import_module(where)
-    except ModuleNotFoundError as exc:
-        if exc.name != where.split(".")[0] or str(Path.cwd()) in sys.path:
-            raise ConfigError(f"controller: cannot import {where}: {exc}") from exc
-    # a console script's path starts at its own directory, not the working one, where a
-    # user's package usually sits: look there too, as `python -m` would
-    sys.path.insert(0, str(Path.cwd()))
-    try:
-        return importlib.import_module(where)
-    except ModuleNotFoundError as exc:
-        raise ConfigError(f"controller: cannot import {where}: {exc}") from exc
 
 
 class UserController:

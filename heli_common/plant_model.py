@@ -19,11 +19,16 @@ from pathlib import Path
 
 from heli_common.airframe import Air, Airframe, Body, PitchLimits, Rotor
 from heli_common.config import CONFIG_DIR, ConfigError, load, spec
+from heli_common.user_class import absolute_spec, is_class_spec, registered
 
 PLANT_KINDS = ("paper", "gavrilets")
+# other packages' plants by name (heli_plant.vehicle.VehicleModel subclasses), as controllers
+PLANT_ENTRY_POINT_GROUP = "heli_tlc_sitl.plants"
 PLANT_HELP = ("the plant that flies: paper (Zhu & Huo's model, the controller's own design model; "
               "default), gavrilets (configs/plant/xcell60-gavrilets.toml: rotor flapping, hub spring, "
-              "governed rotor speed), or a plant file")  # fmt: skip
+              "governed rotor speed), a plant file, a plant another package registers by name (entry "
+              f"point group {PLANT_ENTRY_POINT_GROUP}), or your own model as package.module:Class or "
+              "path/to/file.py:Class (docs/architecture.md, 'A plant of your own')")  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -115,24 +120,38 @@ class RotorPlant:
 @dataclass(frozen=True)
 class PlantModel:
     """The plant a run flies: ``rotor`` None is the paper's model on ``airframe`` (the
-    scenario's design airframe); otherwise Gavrilets' model with its own airframe."""
+    scenario's design airframe); otherwise Gavrilets' model with its own airframe.
+    ``vehicle``: a model of the user's (:class:`heli_plant.vehicle.VehicleModel`), by its
+    registered name or ``module:Class``, built on the design airframe."""
 
     name: str
     rotor: RotorPlant | None = None
+    vehicle: str | None = None
 
     @property
     def kind(self) -> str:
+        if self.vehicle is not None:
+            return self.vehicle
         return "paper" if self.rotor is None else self.rotor.kind
 
     @classmethod
     def load(cls, name_or_path: str | Path | None) -> PlantModel:
-        """``paper`` (or None), ``gavrilets``, or a plant file path."""
+        """``paper`` (or None), ``gavrilets``, a plant file path, a registered plant's name, or
+        ``module:Class`` / ``file.py:Class`` (checked where the plant is built)."""
         if name_or_path is None or str(name_or_path) == "paper":
             return cls("paper")
         s = str(name_or_path)
+        if is_class_spec(s) and not s.endswith(".toml"):
+            spec = absolute_spec(s)
+            return cls(spec, vehicle=spec)
         path = CONFIG_DIR / "plant" / "xcell60-gavrilets.toml" if s == "gavrilets" else Path(s)
         if not path.suffix and not path.is_file():
-            raise ConfigError(f"plant {s!r}: expected paper, gavrilets or a plant file (.toml)")
+            names = registered(PLANT_ENTRY_POINT_GROUP, PLANT_KINDS)
+            if s in names:
+                return cls(s, vehicle=s)
+            others = f", a registered plant ({', '.join(sorted(names))})" if names else ""
+            raise ConfigError(f"plant {s!r}: expected paper, gavrilets{others}, a plant file (.toml) or "
+                              "module:Class")  # fmt: skip
         rp = load(RotorPlant, path)
         return cls(s, rp)
 

@@ -13,6 +13,7 @@ from heli_common.state import N_PITCH, N_STATE, FloatArray
 from heli_common.world import World, with_sim_param
 from heli_plant import rotor
 from heli_plant.sensors.sensing import Sensing
+from heli_plant.vehicle import VehicleModel, build_vehicle
 from heli_plant.world.model import (
     CALM_AIR,
     DIST_NONE,
@@ -65,6 +66,8 @@ class Plant:
     ``model`` (default: the paper's) chooses the plant: Gavrilets' rotor plant always runs
     in a world (calm if none is given), its rotor starting in hover trim, or stopped
     (``rotor_at_rest``: for a firmware that runs it up, :meth:`set_rotor_speed_command`).
+    A ``model`` of the user's (``model.vehicle``, :mod:`heli_plant.vehicle`) is stepped by
+    its own derivative, with the same guards and ground, in the ideal world.
     """
 
     def __init__(
@@ -89,7 +92,15 @@ class Plant:
         self.model = model if model is not None else PlantModel("paper")
         self.world_config = world if world is not None else World()
         self.world: WorldModel | None = None
-        if self.model.rotor is not None:
+        # a model of the user's (heli_plant.vehicle): stepped by its own derivative, in the
+        # ideal world; a world around it is refused, not ignored
+        self.vehicle: VehicleModel | None = None
+        if self.model.vehicle is not None:
+            if world is not None and (world.on or world.sensing):
+                raise ValueError(f"plant {self.model.vehicle}: a plant of your own flies the ideal "
+                                 f"world (world {world.name!r} asks for air, servos or sensors)")  # fmt: skip
+            self.vehicle = build_vehicle(self.model.vehicle, airframe)
+        elif self.model.rotor is not None:
             from heli_plant.trim import hover_rotor_state
 
             trim = hover_rotor_state(self.model, airframe)
@@ -171,6 +182,8 @@ class Plant:
         """A live world or sensor setting (a SIM_ parameter): taken from the next step on.
         False (and nothing changed) for an unknown name or a bad value; the same value
         again is a no-op, so a sender may repeat itself."""
+        if self.vehicle is not None:  # a plant of your own flies the ideal world
+            return False
         try:
             new = with_sim_param(self.world_config, name, value)
         except ValueError:
@@ -199,7 +212,10 @@ class Plant:
 
     def step(self, dt_s: float) -> FloatArray:
         w = self.world
-        if w is None:
+        if self.vehicle is not None:
+            self.x, self.on_ground = self.vehicle.advance(self.t_s, self.x, self.u, dt_s, self.substeps,
+                                                          self.ground_contact)  # fmt: skip
+        elif w is None:
             k = self.calm
             self.x, self.on_ground = world_plant_step(
                 self.t_s, self.x, self.u, self.constants, k.air, dt_s, self.substeps, self.ground_contact,

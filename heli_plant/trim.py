@@ -41,6 +41,7 @@ from heli_common.state import (
     FloatArray,
 )
 from heli_plant import rotor
+from heli_plant.vehicle import VehicleModel, build_vehicle
 from heli_plant.world.model import (
     CALM_AIR,
     N_WS,
@@ -64,6 +65,7 @@ class PlantFunction:
     constants: PlantConstants
     rotor: rotor.RotorConstants
     wp: FloatArray = field(repr=False)
+    vehicle: VehicleModel | None = None  # a model of the user's: its own derivative
 
     @classmethod
     def build(cls, model: PlantModel, design: Airframe) -> PlantFunction:
@@ -71,7 +73,8 @@ class PlantFunction:
         g = rotor.OFF if model.rotor is None else rotor.rotor_constants(model.rotor, af)
         from heli_common.world import World
 
-        return cls(model, af, af.constants(), g, world_parameters(World()))
+        vehicle = None if model.vehicle is None else build_vehicle(model.vehicle, design)
+        return cls(model, af, af.constants(), g, world_parameters(World()), vehicle)
 
     @property
     def n_state(self) -> int:
@@ -82,6 +85,9 @@ class PlantFunction:
         return STATE_NAMES + (rotor.ROTOR_STATE.names if self.rotor.on else ())
 
     def __call__(self, x: FloatArray, u: FloatArray) -> FloatArray:
+        if self.vehicle is not None:
+            xa, ua = np.asarray(x, dtype=float), np.asarray(u, dtype=float)
+            return np.asarray(self.vehicle.derivative(0.0, xa, ua))
         ws = np.zeros(N_WS)
         ws[WS_LAM_MAIN] = ws[WS_LAM_TAIL] = 0.05
         ws[WS_GOVERNOR_SET] = self.rotor.omega_c
@@ -159,7 +165,9 @@ def trim(
     fn = PlantFunction.build(model, design)
     n = 9 if fn.rotor.on else 6
     z0 = np.zeros(n) if guess is None else np.asarray(guess, dtype=float)
-    if guess is None:
+    if guess is None and fn.vehicle is not None:
+        z0 = np.asarray(fn.vehicle.trim_guess(), dtype=float)
+    elif guess is None:
         z0[2 + THETA_M], z0[2 + THETA_T] = 0.1, 0.15
         if fn.rotor.on:
             z0[8] = 0.4 / max(fn.rotor.ki, 1e-9)
@@ -169,7 +177,8 @@ def trim(
     res = float(np.max(np.abs(_residual(fn, sol.x, speed_m_s, altitude_m))))
     if not res < 1e-8:
         raise ValueError(f"{model.name}: no trim at {speed_m_s} m/s (residual {res:.2e})")
-    return Trim(model.kind if model.rotor is None else model.name, speed_m_s, x, u, fn.state_names, res,
+    own = model.rotor is None and model.vehicle is None  # the paper's, by its kind
+    return Trim(model.kind if own else model.name, speed_m_s, x, u, fn.state_names, res,
                 fn.throttle(x, u))  # fmt: skip
 
 

@@ -304,7 +304,8 @@ def simulate(
     if user is not None:
         cls = user if isinstance(user, type) else load_class(user)
         ctl = str(getattr(cls, "name", cls.__name__))
-    what = dict(scenario=_name(scenario, "paper"), plant=_name(plant, "paper"), world=_name(world, "ideal"),
+    plant_name = pm.kind if pm.vehicle is not None else _name(plant, "paper")  # a model by its name
+    what = dict(scenario=_name(scenario, "paper"), plant=plant_name, world=_name(world, "ideal"),
                 controller=ctl)  # fmt: skip
     try:
         rec = _simulate(sc, opts)

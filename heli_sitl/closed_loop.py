@@ -288,27 +288,32 @@ def simulate(
         return x
 
     loop_s = np.zeros(1)
-    # load (or compile) the kernels outside the timed flight, on throwaway copies
-    warm = (plant.u.copy(), w.ws.copy(), w.servo_s.copy(), x, sn.sns.copy(), sn.meas.copy(), sn.est.copy(),
-            loop_s.copy())  # fmt: skip
-    if ctrl is not None:
-        ticks(ctrl, 0, 1, ctrl.state.copy(), *warm)
+    if plant.vehicle is not None:  # a plant of the user's: its derivative from Python, tick by tick
+        wall0 = time.perf_counter()
+        _own_plant_ticks(ctrl if ctrl is not None else user, plant, refs, t, n, xs, us, diags, progress)
     else:
-        assert user is not None
-        user_ticks(copy.deepcopy(user), 0, 1, *warm)
-    wall0 = time.perf_counter()
-    # chunks only where someone watches the progress: each compiled call checks its ~40
-    # arguments' types (~30 us), 25 calls a 120 s flight, paid by every campaign flight
-    chunk = CHUNK_TICKS if progress is not None else n + 1
-    for k0 in range(0, n + 1, chunk):
-        k1 = min(n + 1, k0 + chunk)
+        # load (or compile) the kernels outside the timed flight, on throwaway copies
+        warm = (plant.u.copy(), w.ws.copy(), w.servo_s.copy(), x, sn.sns.copy(), sn.meas.copy(),
+                sn.est.copy(), loop_s.copy())  # fmt: skip
         if ctrl is not None:
-            x = ticks(ctrl, k0, k1, ctrl.state, plant.u, w.ws, w.servo_s, x, sn.sns, sn.meas, sn.est, loop_s)
+            ticks(ctrl, 0, 1, ctrl.state.copy(), *warm)
         else:
             assert user is not None
-            x = user_ticks(user, k0, k1, plant.u, w.ws, w.servo_s, x, sn.sns, sn.meas, sn.est, loop_s)
-        if progress is not None:
-            progress(k1 - 1, n)
+            user_ticks(copy.deepcopy(user), 0, 1, *warm)
+        wall0 = time.perf_counter()
+        # chunks only where someone watches the progress: each compiled call checks its ~40
+        # arguments' types (~30 us), 25 calls a 120 s flight, paid by every campaign flight
+        chunk = CHUNK_TICKS if progress is not None else n + 1
+        for k0 in range(0, n + 1, chunk):
+            k1 = min(n + 1, k0 + chunk)
+            if ctrl is not None:
+                x = ticks(ctrl, k0, k1, ctrl.state, plant.u, w.ws, w.servo_s, x, sn.sns, sn.meas, sn.est,
+                          loop_s)  # fmt: skip
+            else:
+                assert user is not None
+                x = user_ticks(user, k0, k1, plant.u, w.ws, w.servo_s, x, sn.sns, sn.meas, sn.est, loop_s)
+            if progress is not None:
+                progress(k1 - 1, n)
     wall = time.perf_counter() - wall0
     extra: dict[str, object] = {
         "scenario": run.name, "rate_hz": rate_hz,
@@ -331,6 +336,26 @@ def simulate(
     if sn.on:
         rec = dataclasses.replace(rec, x_hat=sn.x_hats, est_log=sn.log)
     return rec
+
+
+def _own_plant_ticks(
+    flyer: KernelController[Any] | UserController | None, plant: Plant, refs: FloatArray, t: FloatArray,
+    n: int, xs: FloatArray, us: FloatArray, diags: FloatArray, progress: Progress | None,
+) -> None:  # fmt: skip
+    """The loop of :func:`_run_ticks` for a plant of the user's (heli_plant.vehicle), from
+    Python: the controller flies on the state as the sim link carries it, the plant holds the
+    pitches as the link delivers them and steps as the plant process steps it (the same
+    flight as in lockstep)."""
+    assert flyer is not None
+    for i in range(n + 1):
+        x = plant.x
+        out = flyer.update(float(t[i]), state_as_received(x), refs[i])
+        xs[i], us[i], diags[i] = x, out, flyer.diag
+        if i < n:
+            pitches_as_received(out, plant.lo, plant.hi, plant.u)
+            plant.step(float(t[i + 1] - t[i]))
+        if progress is not None and (i % CHUNK_TICKS == 0 or i == n):
+            progress(i, n)
 
 
 @dataclass

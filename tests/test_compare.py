@@ -151,7 +151,7 @@ def test_bad_comparison_files_are_refused(tmp_path: Path) -> None:
         ('worlds = ["nowhere"]\n[[contender]]\nlabel = "a"\n', "nowhere"),
         ('[[contender]]\nlabel = "a"\n[[contender]]\nlabel = "A"\n', "labels must differ"),
         ('contenders = 1\n[[contender]]\nlabel = "a"\n', "unknown key 'contenders'"),
-        ('plant = "gavrilet"\n[[contender]]\nlabel = "a"\n', "expected paper, gavrilets or a plant file"),
+        ('plant = "gavrilet"\n[[contender]]\nlabel = "a"\n', "expected paper, gavrilets, a plant file"),
         ('reference = "b"\n[[contender]]\nlabel = "a"\n', "reference 'b' is not a contender"),
         ('seeds = 1\n[[contender]]\nlabel = "a"\n', "seeds"),
         ('[[contender]]\nlabel = "a"\n[contender.plant.paper]\ngain = "x.toml"\n', "unknown key 'gain'"),

@@ -68,7 +68,12 @@ def test_a_run_csv_flies_back(tmp_path: Path) -> None:
     # deterministic, pinned: its first seconds are the first flight's own convergence from
     # 5.2 m off, which a spline through positions alone follows less closely than the spiral
     assert again.metrics.rms_10_m == pytest.approx(0.15169333922, rel=1e-6), again.metrics.rms_m
-    assert files.read_trajectory_csv(run_csv).t_s.size == 3001
+    assert files.read_trajectory_csv(run_csv).t_s.size == 3001  # heli-ground fly's reader
+    cmd = [sys.executable, "-m", "heli_sitl.cli", "simulate", "--trajectory", str(run_csv), "--out",
+           str(tmp_path / "cli")]  # fmt: skip
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=300, cwd=ROOT)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert f"[10-30] s {again.metrics.rms_10_m:.4f} m" in done.stdout, done.stdout  # the API's flight
     # one schema: run.csv's columns are the API's (to_pandas, Parquet), by name and value
     api, csv_cols = first.columns(), read_csv_columns(run_csv)
     assert list(csv_cols) == list(CSV_HEADER) and set(CSV_HEADER) <= set(api)

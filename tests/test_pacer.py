@@ -15,6 +15,7 @@ import pytest
 from autopilot.scenario import Scenario
 from heli_common.ardupilot_json import encode_pace
 from heli_common.mavlink.udp import LOOPBACK
+from heli_common.state import PITCH_LABELS, STATE_NAMES
 from heli_plant.pacer import Pacer
 from heli_sitl.guided_record import guided_record
 from heli_sitl.scorecard import score
@@ -120,7 +121,7 @@ def test_a_guided_flight_reads_into_the_scorecard(tmp_path: Path) -> None:
     t = np.arange(0.0, 30.0, 0.01)
     t0 = 50.0  # the vehicle's clock at trajectory time 0
     with (tmp_path / "plant.csv").open("w") as f:
-        f.write("t,x,y,z,u,v,w,phi,theta,psi,p,q,r,theta_m,theta_t,eps,eta,interlock\n")
+        f.write(",".join(("t_s", *STATE_NAMES, *PITCH_LABELS, "interlock")) + "\n")  # the backend's header
         for k in t:  # east is -y in NWU; 5 m up
             f.write(f"{t0 + k:.6f},0.2,{-k},5,0,0,0,0,0,0,0,0,0,0.1,0,0,0,1\n")
     with (tmp_path / "track.csv").open("w") as f:

@@ -148,7 +148,7 @@ def test_energy_balance_of_the_rigid_body(hover: tuple[PlantFunction, np.ndarray
 
 
 def test_a_bad_plant_name_is_refused() -> None:
-    with pytest.raises(ConfigError, match="expected paper, gavrilets or a plant file"):
+    with pytest.raises(ConfigError, match=r"gavrilets, a plant file \(\.toml\) or module:Class"):
         PlantModel.load("gavrilet")
 
 
