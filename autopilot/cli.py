@@ -30,14 +30,14 @@ from autopilot.tlc.controller import TLController
 from heli_common import cli_args as arg
 from heli_common.defaults import HOME, Exit, ports
 from heli_common.geo import parse_geo_point
-from heli_common.links import ServoOutput
-from heli_common.mavlink.udp import LOOPBACK
-from heli_common.mavlink.wire import read_signing_key
 from heli_common.process import UsageError, run_main, stop_on_signals
 from heli_common.rt_priority import add_rt_priority_arg, apply_rt_priority, current_policy
-from heli_common.servo_link import add_servo_args, load_servo_link, servo_map_for, with_overrides
-from heli_common.servo_map import ServoMap, limits_array
-from heli_common.world import World
+from heli_common.wire.links import ServoOutput
+from heli_common.wire.mavlink.udp import LOOPBACK
+from heli_common.wire.mavlink.wire import read_signing_key
+from heli_common.wire.servo_link import add_servo_args, load_servo_link, servo_map_for, with_overrides
+from heli_common.wire.servo_map import ServoMap, limits_array
+from heli_common.world.config import World
 
 log = logging.getLogger("autopilot")
 PORTS = ports()

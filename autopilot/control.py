@@ -19,10 +19,10 @@ import numpy as np
 from numba.extending import overload
 
 from autopilot.reference import N_REF, REF_POS
-from heli_common.airframe import Airframe, PitchLimits
 from heli_common.jit import njit
 from heli_common.layout import Layout
 from heli_common.state import N_PITCH, N_STATE, POS, FloatArray
+from heli_common.vehicle.airframe import Airframe, PitchLimits
 
 # diagnostics written each tick, the same for every controller
 DIAG = Layout(

@@ -15,8 +15,8 @@ from autopilot.pid.gains import PidGains, default_pid_gains
 from autopilot.tlc.controller import Feedforward, TLController
 from autopilot.tlc.gains import Gains
 from autopilot.user_controller import UserController, is_user_spec, normalise_spec
-from heli_common.airframe import Airframe
 from heli_common.config import ConfigError
+from heli_common.vehicle.airframe import Airframe
 
 CONTROLLERS = BUILT_IN
 

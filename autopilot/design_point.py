@@ -1,7 +1,7 @@
 """Where a gain set is designed to fly: the plant and the servos its stability claim is for.
 
 Every shipped gain file names its design point in a ``[design]`` table; at that point the
-whole closed loop, linearised about hover (``heli-sitl margins``, heli_sitl/loop_linear.py),
+whole closed loop, linearised about hover (``heli-sitl margins``, heli_sitl/engine/loop_linear.py),
 must be stable with a balanced disk margin of at least :data:`MIN_DISK_MARGIN` at every loop
 break point (tests/test_loop_linear.py checks each file). Elsewhere a set may fly, but its
 header says what the margins are there, and nothing is claimed.

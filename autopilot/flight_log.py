@@ -14,8 +14,8 @@ from pathlib import Path
 
 from autopilot import telemetry
 from autopilot.metrics import ROTOR_RECORD, FlightRecord
-from heli_common.mavlink.udp import TlogWriter, mavlink2
 from heli_common.state import FloatArray
+from heli_common.wire.mavlink.udp import TlogWriter, mavlink2
 
 
 def heartbeat(armed: bool) -> mavlink2.MAVLink_heartbeat_message:

@@ -28,7 +28,8 @@ from autopilot.estimation.nav import NavStatus
 from heli_common import frames
 from heli_common.geo import GeoPoint, nwu_to_geo
 from heli_common.kinematics import rot_body_to_earth
-from heli_common.measurements import (
+from heli_common.state import EULER, OMEGA, POS, VEL, FloatArray
+from heli_common.wire.measurements import (
     GPS_FIX_3D,
     OUT_GPS_EPH_M,
     OUT_GPS_EPV_M,
@@ -39,7 +40,6 @@ from heli_common.measurements import (
     OUT_GPS_VEL,
     OUT_MAG_T,
 )
-from heli_common.state import EULER, OMEGA, POS, VEL, FloatArray
 
 UINT16_MAX = 65535
 PERFECT_ACCURACY_M = 0.01  # an ideal receiver's reported accuracy (as the sensor model's floor)

@@ -20,7 +20,7 @@ all REAL32 (see "Encoding" below):
   HOME_ALT               home altitude AMSL [m] (read-only)
   PID_*                  the cascaded PID baseline's gains (autopilot/pid/gains.py; PID_PARAMS
                          below), used when the vehicle flies --controller pid
-  SIM_*                  the world's live knobs (heli_common.world.SIM_PARAMS: wind, gust,
+  SIM_*                  the world's live knobs (heli_common.world.config.SIM_PARAMS: wind, gust,
                          turbulence, servos), forwarded to the plant; see docs/world.md
 
 Ranges come from the ``spec`` metadata of the dataclasses the values end up in (Gains,
@@ -59,15 +59,15 @@ from pymavlink.dialects.v20 import development as mavlink
 
 from autopilot.pid.gains import PID_SECTIONS, PidGains, default_pid_gains
 from autopilot.tlc.gains import CommandLimits, DifferentiatorGains, Gains, LoopGains
-from heli_common.airframe import PitchLimits
 from heli_common.config import spec
 from heli_common.geo import GeoPoint
-from heli_common.mavlink.udp import (
+from heli_common.vehicle.airframe import PitchLimits
+from heli_common.wire.mavlink.udp import (
     Message,
     addressed_to,
 )
-from heli_common.mavlink.wire import decode_param, encode_param, f32
-from heli_common.world import SIM_PARAMS, World, sim_values, with_sim_param
+from heli_common.wire.mavlink.wire import decode_param, encode_param, f32
+from heli_common.world.config import SIM_PARAMS, World, sim_values, with_sim_param
 
 REAL32: int = mavlink.MAV_PARAM_TYPE_REAL32
 INT32: int = mavlink.MAV_PARAM_TYPE_INT32

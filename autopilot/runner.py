@@ -34,9 +34,9 @@ from autopilot.metrics import CSV_HEADER, ROTOR_CSV, FlightRecord, rotor_record,
 from autopilot.reference import N_REF
 from autopilot.tick_timer import CONTROL, FLUSH, NAVIGATE, RECORD, SEND, SERVICES, TickTimer
 from heli_common.layout import Layout
-from heli_common.links import ServoOutput, StateSource
-from heli_common.mavlink.sim_protocol import N_ROTOR_TRUTH, StateSample
 from heli_common.state import N_PITCH, N_STATE, PHI, PSI, THETA, X_N, Y_W, Z_U, FloatArray
+from heli_common.wire.links import ServoOutput, StateSource
+from heli_common.wire.mavlink.sim_protocol import N_ROTOR_TRUTH, StateSample
 
 log = logging.getLogger("autopilot.runner")
 LOCKSTEP_SPIN_S = 0.002  # poll this long before sleeping (see MavlinkUdp.wait)

@@ -14,9 +14,9 @@ from autopilot.tlc.controller import Feedforward
 from autopilot.tlc.gains import Gains
 from autopilot.trajectory.base import Trajectory
 from autopilot.trajectory.factory import trajectory_from_table
-from heli_common.airframe import Airframe
 from heli_common.config import ConfigError, build, read_toml, spec
-from heli_common.scenario_file import InitialState, scenario_path
+from heli_common.vehicle.airframe import Airframe
+from heli_common.vehicle.scenario_file import InitialState, scenario_path
 
 
 @dataclass(frozen=True)

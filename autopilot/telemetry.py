@@ -7,12 +7,13 @@ import math
 import numpy as np
 
 from autopilot.reference import REF_ACC, REF_POS, REF_VEL
-from heli_common import frames, servo_map
-from heli_common.gusts import gust_factor, mean_wind_nwu
-from heli_common.mavlink.sim_protocol import state_fields
-from heli_common.mavlink.udp import Message, mavlink2
+from heli_common import frames
 from heli_common.state import FloatArray
-from heli_common.world import World
+from heli_common.wire import servo_map
+from heli_common.wire.mavlink.sim_protocol import state_fields
+from heli_common.wire.mavlink.udp import Message, mavlink2
+from heli_common.world.config import World
+from heli_common.world.gusts import gust_factor, mean_wind_nwu
 
 # POSITION_TARGET_LOCAL_NED type_mask: position, velocity, acceleration and yaw used; yaw rate not
 TYPE_MASK_PVA_YAW = mavlink2.POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE

@@ -40,7 +40,7 @@ The spline's own error at 0.5 s is tiny (pos 7e-7 m, vel 9e-6 m/s, acc 7e-5 m/s^
 0.1 mm x/y quantum, differentiated, dominates and grows as the step shrinks, so steps
 below ~0.5 s make the acceleration feedforward noisier, not better.
 
-Closed loop (heli_sitl.closed_loop.simulate, paper scenario, 100 Hz): flying the decoded
+Closed loop (heli_sitl.engine.closed_loop.simulate, paper scenario, 100 Hz): flying the decoded
 0.5 s upload instead of the analytic spiral changes the flown position by at most
 9e-5 m, the attitude by 2.5e-4 rad and the blade pitches by 6e-5 rad with the paper's
 pseudo-differentiator feedforward (9e-5 m / 4.2e-4 rad / 1e-4 rad with exact feedforward).
@@ -64,8 +64,8 @@ from autopilot.trajectory.waypoints import (
 )
 from heli_common.frames import flip
 from heli_common.geo import GeoPoint
-from heli_common.mavlink import mission_items as ms
 from heli_common.state import FloatArray
+from heli_common.wire.mavlink import mission_items as ms
 
 FORMAT_VERSION = 1
 MAGIC = 0x544C4354  # "TLCT"

@@ -47,9 +47,9 @@ from autopilot.control import BAD_INPUT, BAD_OUTPUT, D_SAT_MASK, D_STATUS, N_DIA
 from autopilot.controller_names import BUILT_IN, registered
 from autopilot.reference import N_REF, REF_POS
 from heli_common import user_class
-from heli_common.airframe import Airframe, PitchLimits
 from heli_common.config import ConfigError
 from heli_common.state import N_PITCH, N_STATE, FloatArray
+from heli_common.vehicle.airframe import Airframe, PitchLimits
 
 log = logging.getLogger(__name__)
 

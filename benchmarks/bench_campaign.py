@@ -13,8 +13,8 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks import Row, above, below, bench
-from heli_sitl.campaigns.engine import run_batch
-from heli_sitl.campaigns.run import prepare, run_campaign
+from heli_sitl.studies.campaigns.engine import run_batch
+from heli_sitl.studies.campaigns.run import prepare, run_campaign
 
 SUBSET = 200  # flights of the robustness campaign for the 1- and 2-worker figures
 

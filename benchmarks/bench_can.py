@@ -23,12 +23,12 @@ from autopilot.links.can_servo import CanServoSender
 from autopilot.scenario import Scenario
 from benchmarks import Row as TableRow
 from benchmarks import bench
-from heli_common.airframe import Airframe
-from heli_common.can.bus import CanBusConfig
-from heli_common.can.dronecan_codec import ArrayCommandEncoder, float16_round
+from heli_common.vehicle.airframe import Airframe
+from heli_common.wire.can.bus import CanBusConfig
+from heli_common.wire.can.dronecan_codec import ArrayCommandEncoder, float16_round
 from heli_plant.can_endpoint import CanServoEndpoint
-from heli_sitl.can_closed_loop import fly_over_can
-from heli_sitl.closed_loop import simulate
+from heli_sitl.engine.can_closed_loop import fly_over_can
+from heli_sitl.engine.closed_loop import simulate
 
 Row = tuple[str, float, str, str]
 TICK_HZ = 100.0

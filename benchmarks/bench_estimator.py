@@ -19,8 +19,8 @@ from autopilot.estimation import Estimator, EstimatorConfig
 from autopilot.estimation.kf import est_gps, est_output, est_predict
 from benchmarks import Row, bench
 from benchmarks.bench_sim import flight, median_ns
-from heli_common.measurements import AttitudeSample, ImuSample
 from heli_common.state import N_STATE, FloatArray
+from heli_common.wire.measurements import AttitudeSample, ImuSample
 
 RATE_HZ = 100.0
 DT = 1.0 / RATE_HZ

@@ -20,8 +20,8 @@ from autopilot.flight_metrics import FlightMetrics
 from autopilot.scenario import Scenario
 from benchmarks import Row, above, below, bench
 from heli_common.rt_priority import DEFAULT_PRIORITY
-from heli_sitl.closed_loop import simulate
-from heli_sitl.demo import DemoOptions, run_demo
+from heli_sitl.engine.closed_loop import simulate
+from heli_sitl.launch.demo import DemoOptions, run_demo
 
 
 def _demo(**kw: object) -> dict[str, object]:

@@ -21,10 +21,10 @@ from autopilot.pid.gains import default_pid_gains
 from autopilot.scenario import Scenario
 from autopilot.tlc.controller import N_DIAG, TLController, tlc_kernel
 from benchmarks import Row, above, below, bench
-from heli_common.plant_model import PlantModel
 from heli_common.state import N_PITCH, POS
+from heli_common.vehicle.plant_model import PlantModel
 from heli_plant.model import Plant, plant_step
-from heli_sitl.closed_loop import SimOptions, simulate
+from heli_sitl.engine.closed_loop import SimOptions, simulate
 
 SCENARIO = "paper"
 # 1500x for the navigation-filter flight as a multiple of the ideal-world tick on the host
@@ -172,7 +172,7 @@ def bench_accuracy() -> list[Row]:
 def bench_world() -> list[Row]:
     """The paper flight with every effect of the world on (``--world everything``), and
     each effect alone: its cost per plant step over the ideal world's flight (best of 3)."""
-    from heli_common.world import AirLoads, Disturbance, Gust, Turbulence, Wind, World
+    from heli_common.world.config import AirLoads, Disturbance, Gust, Turbulence, Wind, World
 
     PAPER = PlantModel("paper")
 
@@ -232,7 +232,7 @@ def bench_sensors() -> list[Row]:
     import dataclasses
 
     from autopilot.estimation.config import EstimatorConfig
-    from heli_common.world import World
+    from heli_common.world.config import World
 
     sc = Scenario.load("paper")
     noisy = World.load("noisy")

@@ -8,7 +8,7 @@ from pathlib import Path
 from autopilot.scenario import Scenario
 from benchmarks import Row, bench
 from benchmarks.bench_processes import _demo, raw_round_trip_us
-from heli_sitl.closed_loop import SimOptions, simulate
+from heli_sitl.engine.closed_loop import SimOptions, simulate
 
 ROOT = Path(__file__).resolve().parent.parent
 LQR = f"{ROOT / 'docs/examples/lqr_hover.py'}:LqrHover"

@@ -21,10 +21,10 @@ import numpy as np
 from autopilot.flight_metrics import FlightMetrics
 from autopilot.links.can_servo import CanServoSender
 from autopilot.links.mavlink_sim import SimLink
-from heli_common.airframe import Airframe
-from heli_common.can.bus import CanBusConfig, open_bus
-from heli_common.servo_map import limits_array
-from heli_sitl.demo import DemoOptions, run_demo
+from heli_common.vehicle.airframe import Airframe
+from heli_common.wire.can.bus import CanBusConfig, open_bus
+from heli_common.wire.servo_map import limits_array
+from heli_sitl.launch.demo import DemoOptions, run_demo
 
 N_SENDS = 3000
 

@@ -15,7 +15,7 @@ import tempfile
 from pathlib import Path
 
 from heli_common.rt_priority import DEFAULT_PRIORITY
-from heli_sitl.demo import DemoOptions, run_demo
+from heli_sitl.launch.demo import DemoOptions, run_demo
 
 
 def loaded_flight(rt_priority: int, duration_s: float) -> dict[str, object]:

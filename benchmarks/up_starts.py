@@ -16,8 +16,8 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 
 from heli_common.defaults import ports
-from heli_common.mavlink.udp import LOOPBACK, MavlinkUdp
-from heli_sitl.children import spawn
+from heli_common.wire.mavlink.udp import LOOPBACK, MavlinkUdp
+from heli_sitl.launch.children import spawn
 
 LIMIT_S = 90.0  # one start's bound: the first start may load the compiled code
 

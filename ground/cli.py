@@ -29,9 +29,9 @@ from ground.files import FileFormatError, MissionFile, load_mission, load_trajec
 from ground.log import TlogError, tlog_columns, write_csv
 from heli_common import cli_args as arg
 from heli_common.defaults import ports
-from heli_common.mavlink.udp import TlogWriter, mavlink2
-from heli_common.mavlink.wire import SigningKeyError, f32_text, read_signing_key
 from heli_common.process import run_main
+from heli_common.wire.mavlink.udp import TlogWriter, mavlink2
+from heli_common.wire.mavlink.wire import SigningKeyError, f32_text, read_signing_key
 
 PROG = "heli-ground"
 HOME_MISMATCH_M = 1.0  # warn when a file's home is farther than this from the vehicle's

@@ -1,4 +1,4 @@
-"""A small ground-station client: one UDP socket (heli_common.mavlink.udp.MavlinkUdp), no
+"""A small ground-station client: one UDP socket (heli_common.wire.mavlink.udp.MavlinkUdp), no
 pymavlink ``mavutil`` global state, every wait bounded.
 
 The client binds the port the vehicle sends to (``--gcs-port``, 14550 by default: the
@@ -31,17 +31,17 @@ from dataclasses import dataclass, field, replace
 from heli_common.closing import Closing
 from heli_common.defaults import ports
 from heli_common.geo import GeoPoint
-from heli_common.mavlink import modes as wm
-from heli_common.mavlink.mission_items import MissionItem
-from heli_common.mavlink.udp import LOOPBACK, Address, MavlinkUdp, Message, TlogWriter, mavlink2
-from heli_common.mavlink.wire import decode_param, encode_param, f32
+from heli_common.wire.mavlink import modes as wm
+from heli_common.wire.mavlink.mission_items import MissionItem
+from heli_common.wire.mavlink.udp import LOOPBACK, Address, MavlinkUdp, Message, TlogWriter, mavlink2
+from heli_common.wire.mavlink.wire import decode_param, encode_param, f32
 
 m2 = mavlink2
 PORTS = ports()
 
 GCS_SYSTEM_ID = 255
 GCS_COMPONENT_ID = m2.MAV_COMP_ID_MISSIONPLANNER  # 190
-# the vehicle's mode numbers (heli_common.mavlink.modes): main/sub as DO_SET_MODE takes them
+# the vehicle's mode numbers (heli_common.wire.mavlink.modes): main/sub as DO_SET_MODE takes them
 PX4_MAIN_AUTO, PX4_SUB_MISSION = wm.main_sub(wm.MISSION.custom_mode)
 PX4_SUB_LOITER = wm.main_sub(wm.HOLD.custom_mode)[1]
 PX4_MAIN_OFFBOARD = wm.main_sub(wm.OFFBOARD.custom_mode)[0]

@@ -59,9 +59,9 @@ from autopilot.trajectory.manoeuvres import ArcTurn
 from autopilot.trajectory.sampled import SampledTrajectory
 from heli_common.config import ConfigError
 from heli_common.geo import GeoPoint
-from heli_common.mavlink import mission_items as ms
-from heli_common.mavlink.mission_items import MissionItem
-from heli_common.mavlink.wire import f32_text
+from heli_common.wire.mavlink import mission_items as ms
+from heli_common.wire.mavlink.mission_items import MissionItem
+from heli_common.wire.mavlink.wire import f32_text
 
 WPL_HEADER = "QGC WPL 110"
 WPL_COLUMNS = 12

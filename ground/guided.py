@@ -51,9 +51,9 @@ import numpy as np
 from autopilot.trajectory.base import Trajectory
 from autopilot.trajectory.sampled import TimedSamples
 from ground.client import PX4_MAIN_OFFBOARD, CommandRefusedError, GroundClient, GroundError, LinkTimeoutError
-from heli_common.ardupilot_json import encode_pace
 from heli_common.frames import flip_rows, nwu_to_ned
-from heli_common.mavlink.udp import LOOPBACK, Message, mavlink2
+from heli_common.wire.ardupilot_json import encode_pace
+from heli_common.wire.mavlink.udp import LOOPBACK, Message, mavlink2
 
 m2 = mavlink2
 ARDUPILOT_GUIDED, ARDUPILOT_LAND = 4, 9  # ArduCopter custom modes (Copter's mode numbers)

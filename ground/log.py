@@ -2,7 +2,7 @@
 the vehicle's telemetry into the columns of ``run.csv`` (the in-process simulator's CSV).
 
 A ``.tlog`` record is a big-endian uint64 unix time [us] followed by one MAVLink packet as
-received (heli_common.mavlink.udp.TlogWriter; ``mavlogdump.py`` reads it).
+received (heli_common.wire.mavlink.udp.TlogWriter; ``mavlogdump.py`` reads it).
 
 Columns (:data:`autopilot.metrics.CSV_HEADER`, the paper's NWU/FLU frames, SI units), one
 row per LOCAL_POSITION_NED of the vehicle:
@@ -25,7 +25,7 @@ row per LOCAL_POSITION_NED of the vehicle:
 * ``phi_ref_rad, theta_ref_rad``: ATTITUDE_TARGET (10 Hz, FRD quaternion -> FLU Euler), the
   controller's roll and pitch commands, resampled like the targets; NaN without one.
 * ``theta_m_rad, theta_t_rad, eps_rad, eta_rad``: SERVO_OUTPUT_RAW (10 Hz, resampled like the targets)
-  mapped back through the inverse of heli_common.servo_map.to_pwm_us with the airframe's
+  mapped back through the inverse of heli_common.wire.servo_map.to_pwm_us with the airframe's
   pitch limits (or the LIM_* parameters seen in the log); the PWM quantum of 1 us is
   (hi - lo) / 1000 rad of pitch, and a saturated command reads as its limit. The control
   moves faster than 10 Hz, so these are a 10 Hz view of the pitches, not every tick's.
@@ -45,10 +45,11 @@ import numpy as np
 import numpy.typing as npt
 
 from autopilot.metrics import CSV_HEADER
-from heli_common import frames, servo_map
-from heli_common.airframe import Airframe
-from heli_common.mavlink.udp import Message, TlogWriter, mavlink2
+from heli_common import frames
 from heli_common.state import FloatArray
+from heli_common.vehicle.airframe import Airframe
+from heli_common.wire import servo_map
+from heli_common.wire.mavlink.udp import Message, TlogWriter, mavlink2
 
 __all__ = ["STALE_S", "TlogError", "TlogStats", "TlogWriter", "read_tlog", "tlog_columns", "tlog_time_origin",
            "write_csv"]

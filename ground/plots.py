@@ -36,7 +36,7 @@ def plot_figures(
     """Write the paper's Figs 5-8 and the 3-D error (Fig 9); returns their paths.
     ``pitch_limits_rad``: (4, 2) lower/upper limits drawn on Fig 8 (default: the airframe's)."""
     if pitch_limits_rad is None:
-        from heli_common.airframe import Airframe
+        from heli_common.vehicle.airframe import Airframe
 
         pitch_limits_rad = Airframe.load().limits.as_tuple()
     lim = np.asarray(pitch_limits_rad, dtype=float).reshape(4, 2)

@@ -7,7 +7,7 @@ the same port, and the plant refused ``--port`` equal to ``--autopilot-port``). 
 launcher binds every socket itself (:class:`HeldPorts`), keeps it bound, and starts each
 child with the sockets it needs inherited (``pass_fds``) and named in the environment
 variable :data:`ENV` as ``host:port=fd`` pairs. A child that binds one of those addresses
-(:func:`heli_common.mavlink.udp.bind_udp`) adopts the inherited socket instead: the port
+(:func:`heli_common.wire.mavlink.udp.bind_udp`) adopts the inherited socket instead: the port
 was never free in between, and whatever was sent to it before the child was ready waits in
 the socket's queue. Explicit ports (``--port 4560``) bind as before.
 """

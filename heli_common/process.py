@@ -10,8 +10,8 @@ from types import FrameType
 
 from heli_common.config import ConfigError
 from heli_common.defaults import Exit
-from heli_common.mavlink.udp import PortBusyError
-from heli_common.mavlink.wire import SigningKeyError
+from heli_common.wire.mavlink.udp import PortBusyError
+from heli_common.wire.mavlink.wire import SigningKeyError
 
 
 class UsageError(ValueError):

@@ -2,14 +2,14 @@
 
 ArduPilot's SITL (``--model JSON``) sends a servo frame and waits for the physics' answer;
 each NEW frame is one step of ``1 / frame_rate`` s. Here a frame's PWMs go through the
-swashplate (:class:`heli_common.swashplate.Swashplate`: SERVO1-3 the plate, SERVO4 the tail,
+swashplate (:class:`heli_common.vehicle.swashplate.Swashplate`: SERVO1-3 the plate, SERVO4 the tail,
 channel 8 HeliRSC) to blade pitches, the plant steps with them held, and the answer is the
 truth after the step: body rates and specific force (FRD), position and velocity (NED about
 home) and the attitude quaternion. The firmware builds its own GPS, baro and compass from
 these.
 
 The rotor: ArduPilot's RSC output on channel 8 goes to the rotor through the head's
-:class:`~heli_common.swashplate.RotorSpeedInput` (an external governor). On Gavrilets' plant
+:class:`~heli_common.vehicle.swashplate.RotorSpeedInput` (an external governor). On Gavrilets' plant
 it is the governor's set point: with the interlock off the engine stops and the rotor winds
 down (it starts at rest when the plant starts on the ground), above it the governor follows
 the firmware's ramp to the design speed, and the blades make thrust only as fast as the rotor
@@ -36,9 +36,9 @@ from typing import IO
 
 import numpy as np
 
-from heli_common.ardupilot_json import json_state_from_plant
 from heli_common.state import N_PITCH, PITCH_LABELS, STATE_NAMES, FloatArray
-from heli_common.swashplate import Swashplate
+from heli_common.vehicle.swashplate import Swashplate
+from heli_common.wire.ardupilot_json import json_state_from_plant
 from heli_plant.ardupilot_link import ArduPilotJsonLink
 from heli_plant.model import Plant
 from heli_plant.pacer import Pacer

@@ -27,15 +27,15 @@ from __future__ import annotations
 import select
 from dataclasses import dataclass, field
 
-from heli_common.ardupilot_json import (
+from heli_common.closing import Closing
+from heli_common.wire.ardupilot_json import (
     MAX_DATAGRAM_BYTES,
     Refusal,
     RefusalReason,
     ServoFrame,
     parse_servo_packet,
 )
-from heli_common.closing import Closing
-from heli_common.mavlink.udp import LOOPBACK, Address, bind_udp
+from heli_common.wire.mavlink.udp import LOOPBACK, Address, bind_udp
 
 __all__ = ["BASE_PORT", "ArduPilotJsonLink", "LinkCounters", "RefusedCounts", "port_for_instance"]
 
@@ -191,7 +191,7 @@ class ArduPilotJsonLink(Closing):
 
     # -- answering ---------------------------------------------------------------------------
     def answer(self, state: bytes) -> None:
-        """Send ``state`` (from :func:`heli_common.ardupilot_json.state_json`) as the answer
+        """Send ``state`` (from :func:`heli_common.wire.ardupilot_json.state_json`) as the answer
         to the frame poll last returned. Raises RuntimeError if poll has returned no frame
         (of this session) yet, ValueError if ``state`` is not newline-framed."""
         if self._seen is None or self._peer is None:

@@ -1,7 +1,7 @@
 """The plant's CAN servo input: DroneCAN ArrayCommand in, held pitches out.
 
 The endpoint stands for the four pitch servos on the bus. ``poll(now_s)`` drains the bus,
-reassembles and checks every transfer (:mod:`heli_common.can.dronecan_codec`) and
+reassembles and checks every transfer (:mod:`heli_common.wire.can.dronecan_codec`) and
 returns the pitches held now, in the order theta_m, theta_t, eps, eta [rad] (None until
 the first valid command). The caller hands them to ``Plant.set_pitches``.
 
@@ -51,9 +51,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from heli_common.airframe import PitchLimits
-from heli_common.can.bus import CanBus, CanBusConfig, CanBusError, open_bus
-from heli_common.can.dronecan_codec import (
+from heli_common.closing import Closing
+from heli_common.ratelog import RateLimitedLog
+from heli_common.state import N_PITCH, PITCH_NAMES, FloatArray
+from heli_common.vehicle.airframe import PitchLimits
+from heli_common.wire.can.bus import CanBus, CanBusConfig, CanBusError, open_bus
+from heli_common.wire.can.dronecan_codec import (
     ARMING_STATUS_DTID,
     ARMING_STATUS_FULL,
     ARRAY_COMMAND_DTID,
@@ -67,9 +70,6 @@ from heli_common.can.dronecan_codec import (
     check_actuator_ids,
     check_node_id,
 )
-from heli_common.closing import Closing
-from heli_common.ratelog import RateLimitedLog
-from heli_common.state import N_PITCH, PITCH_NAMES, FloatArray
 from heli_plant.model import accept_pitches
 
 log = logging.getLogger(__name__)

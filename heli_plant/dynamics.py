@@ -1,7 +1,7 @@
 """The un-simplified helicopter model (Zhu & Huo eqs 7-13, 16-17) as a pure function.
 
 ``derivative(t, x, u, c)`` returns dx/dt for the named state layout of
-:mod:`heli_common.state`, pitches ``u`` [rad] and :class:`~heli_common.airframe.PlantConstants`.
+:mod:`heli_common.state`, pitches ``u`` [rad] and :class:`~heli_common.vehicle.airframe.PlantConstants`.
 Frames: earth NWU, body FLU, main thrust along +z_body. Torques follow the paper's
 printed eq. 13 (see docs/model.md section 2.2 for the physically derived
 alternative and why the printed one is kept).
@@ -13,8 +13,6 @@ import math
 
 import numpy as np
 
-from heli_common import rotor
-from heli_common.airframe import PlantConstants
 from heli_common.jit import njit
 from heli_common.state import (
     EPS,
@@ -34,6 +32,8 @@ from heli_common.state import (
     X_N,
     FloatArray,
 )
+from heli_common.vehicle import rotor
+from heli_common.vehicle.airframe import PlantConstants
 
 
 @njit

@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from heli_common.airframe import Airframe, PlantConstants
 from heli_common.defaults import HOME
 from heli_common.geo import GeoPoint
 from heli_common.jit import njit
-from heli_common.plant_model import PlantModel
 from heli_common.state import N_PITCH, N_STATE, FloatArray
-from heli_common.world import World, with_sim_param
+from heli_common.vehicle.airframe import Airframe, PlantConstants
+from heli_common.vehicle.plant_model import PlantModel
+from heli_common.world.config import World, with_sim_param
 from heli_plant import rotor
 from heli_plant.sensors.sensing import Sensing
 from heli_plant.vehicle import VehicleModel, build_vehicle

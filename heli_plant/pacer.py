@@ -21,11 +21,11 @@ import math
 import select
 from dataclasses import dataclass
 
-from heli_common.ardupilot_json import PACE as _PACE
-from heli_common.ardupilot_json import PACE_PORT_OFFSET, encode_pace
 from heli_common.clock import Clock, SystemClock
 from heli_common.closing import Closing
-from heli_common.mavlink.udp import LOOPBACK, bind_udp
+from heli_common.wire.ardupilot_json import PACE as _PACE
+from heli_common.wire.ardupilot_json import PACE_PORT_OFFSET, encode_pace
+from heli_common.wire.mavlink.udp import LOOPBACK, bind_udp
 
 __all__ = ["PACE_PORT_OFFSET", "Pacer", "PacerCounts", "encode_pace"]
 

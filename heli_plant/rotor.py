@@ -4,7 +4,7 @@ The loads of the nonlinear model of Gavrilets, Mettler & Feron (AIAA GNC 2001) i
 project's frames (earth NWU, body FLU), for the rigid body of
 :func:`heli_plant.dynamics.rigid_body`. The derivation, the signs and the sources are
 in ``docs/rotor-plant.md``; the constants come from a plant file
-(:class:`heli_common.plant_model.RotorPlant`). Four states join the rigid body's twelve,
+(:class:`heli_common.vehicle.plant_model.RotorPlant`). Four states join the rigid body's twelve,
 kept by the world step after them (layout :data:`ROTOR_STATE`):
 
 * ``a1``, ``b1`` [rad]: the tip-path plane's tilt relative to the shaft, forward and to the
@@ -53,11 +53,11 @@ from typing import NamedTuple
 
 import numpy as np
 
-from heli_common.airframe import Airframe, PlantConstants
 from heli_common.jit import njit
 from heli_common.layout import Layout
-from heli_common.plant_model import RotorPlant
 from heli_common.state import EPS, ETA, P_X, PHI, Q_Y, R_Z, THETA, THETA_M, THETA_T, Z_U, FloatArray
+from heli_common.vehicle.airframe import Airframe, PlantConstants
+from heli_common.vehicle.plant_model import RotorPlant
 from heli_plant.dynamics import gravity_into
 from heli_plant.world import air
 

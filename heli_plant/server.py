@@ -20,17 +20,17 @@ from typing import Any
 import numpy as np
 
 from heli_common import frames
-from heli_common.links import ServoCommand, ServoInput
-from heli_common.mavlink.fast import ParamSet, SimCodec
-from heli_common.mavlink.sim_protocol import (
+from heli_common.wire.links import ServoCommand, ServoInput
+from heli_common.wire.mavlink.fast import ParamSet, SimCodec
+from heli_common.wire.mavlink.sim_protocol import (
     ROTOR_TRUTH_CHANNELS,
     encode_state,
     period_us,
     plausible_state,
     receive,
 )
-from heli_common.mavlink.udp import MavlinkUdp, mavlink2
-from heli_common.servo_map import limits_array
+from heli_common.wire.mavlink.udp import MavlinkUdp, mavlink2
+from heli_common.wire.servo_map import limits_array
 from heli_plant.model import Plant
 from heli_plant.sensors.sensing import encode_measurements
 from heli_plant.servo_inputs import MavlinkServoInput
@@ -81,7 +81,7 @@ class SimStats:
     resent_states: int = 0
     silent_events: int = 0
     autopilot_silent: bool = False
-    # the vehicle left the range a state may hold (heli_common.mavlink.sim_protocol): no
+    # the vehicle left the range a state may hold (heli_common.wire.mavlink.sim_protocol): no
     # autopilot would accept it, so the run ends here, saying so (a lockstep run would
     # otherwise wait for an answer that never comes)
     lost: str = ""

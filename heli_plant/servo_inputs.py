@@ -1,6 +1,6 @@
 """The plant's servo inputs: HIL_ACTUATOR_CONTROLS on the MAVLink sim link, or DroneCAN.
 
-Both meet :class:`heli_common.links.ServoInput`, so the plant server never branches on
+Both meet :class:`heli_common.wire.links.ServoInput`, so the plant server never branches on
 the medium.
 """
 
@@ -10,12 +10,12 @@ import time
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
-from heli_common.links import ServoCommand
-from heli_common.mavlink.fast import HilActuatorControls, ParamSet, SimCodec
-from heli_common.mavlink.sim_protocol import MAV_MODE_FLAG_SAFETY_ARMED, decode_command, receive
-from heli_common.mavlink.udp import MavlinkUdp
-from heli_common.servo_map import ServoMap
 from heli_common.state import FloatArray
+from heli_common.wire.links import ServoCommand
+from heli_common.wire.mavlink.fast import HilActuatorControls, ParamSet, SimCodec
+from heli_common.wire.mavlink.sim_protocol import MAV_MODE_FLAG_SAFETY_ARMED, decode_command, receive
+from heli_common.wire.mavlink.udp import MavlinkUdp
+from heli_common.wire.servo_map import ServoMap
 
 if TYPE_CHECKING:  # python-can and dronecan's DSDL cost a plant on MAVLink 0.3 s to import
     from heli_plant.can_endpoint import CanServoEndpoint

@@ -20,9 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from heli_common.airframe import Airframe, PlantConstants
 from heli_common.kinematics import rot_body_to_earth
-from heli_common.plant_model import PlantModel
 from heli_common.state import (
     N_STATE,
     P_X,
@@ -40,6 +38,8 @@ from heli_common.state import (
     Z_U,
     FloatArray,
 )
+from heli_common.vehicle.airframe import Airframe, PlantConstants
+from heli_common.vehicle.plant_model import PlantModel
 from heli_plant import rotor
 from heli_plant.vehicle import VehicleModel, build_vehicle
 from heli_plant.world.model import (
@@ -71,7 +71,7 @@ class PlantFunction:
     def build(cls, model: PlantModel, design: Airframe) -> PlantFunction:
         af = design if model.rotor is None else model.rotor.airframe()
         g = rotor.OFF if model.rotor is None else rotor.rotor_constants(model.rotor, af)
-        from heli_common.world import World
+        from heli_common.world.config import World
 
         vehicle = None if model.vehicle is None else build_vehicle(model.vehicle, design)
         return cls(model, af, af.constants(), g, world_parameters(World()), vehicle)

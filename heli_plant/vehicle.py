@@ -25,10 +25,10 @@ from typing import Any, ClassVar
 import numpy as np
 
 from heli_common import user_class
-from heli_common.airframe import Airframe
 from heli_common.config import ConfigError
-from heli_common.plant_model import PLANT_ENTRY_POINT_GROUP, PLANT_KINDS
 from heli_common.state import N_PITCH, N_STATE, FloatArray
+from heli_common.vehicle.airframe import Airframe
+from heli_common.vehicle.plant_model import PLANT_ENTRY_POINT_GROUP, PLANT_KINDS
 from heli_plant import dynamics
 from heli_plant.contact import apply_ground_contact
 

@@ -12,8 +12,8 @@
 False
 
 Every argument takes a preset name, a file path or the object itself (a
-:class:`~autopilot.scenario.Scenario`, :class:`~heli_common.plant_model.PlantModel`,
-:class:`~heli_common.world.World`, :class:`~autopilot.estimation.config.EstimatorConfig`);
+:class:`~autopilot.scenario.Scenario`, :class:`~heli_common.vehicle.plant_model.PlantModel`,
+:class:`~heli_common.world.config.World`, :class:`~autopilot.estimation.config.EstimatorConfig`);
 a bad one raises :class:`~heli_common.config.ConfigError` naming it. The flight itself never
 raises: a flight whose numerics fail is returned with ``status`` FAILED and its ``error``.
 """
@@ -41,19 +41,19 @@ from autopilot.scenario import Scenario
 from autopilot.tlc.gains import Gains
 from autopilot.trajectory.csv_table import trajectory_from_csv
 from autopilot.user_controller import BUILT_IN, load_class, normalise_spec, user_traceback
-from heli_common.airframe import Airframe
 from heli_common.config import ConfigError
-from heli_common.plant_model import PlantModel
-from heli_common.scenario_file import load_vehicle
-from heli_common.sensors import SEED_MAX
 from heli_common.state import PITCH_LABELS, STATE_NAMES, FloatArray
-from heli_common.world import World
+from heli_common.vehicle.airframe import Airframe
+from heli_common.vehicle.plant_model import PlantModel
+from heli_common.vehicle.scenario_file import load_vehicle
+from heli_common.world.config import World
+from heli_common.world.sensors import SEED_MAX
 from heli_plant.trim import Linearization, Trim
 from heli_plant.trim import linearize as _linearize
 from heli_plant.trim import trim as _trim
-from heli_sitl.campaigns.counts import CampaignCounts
-from heli_sitl.closed_loop import SimOptions
-from heli_sitl.closed_loop import simulate as _simulate
+from heli_sitl.engine.closed_loop import SimOptions
+from heli_sitl.engine.closed_loop import simulate as _simulate
+from heli_sitl.studies.campaigns.counts import CampaignCounts
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -405,7 +405,7 @@ def campaign(
 
     import pyarrow.parquet as pq
 
-    from heli_sitl.campaigns.run import run_campaign
+    from heli_sitl.studies.campaigns.run import run_campaign
 
     if controller is not None and not isinstance(controller, str):
         raise ConfigError("controller: a campaign's workers load the controller by name: give 'tlc', 'pid', "
@@ -446,7 +446,7 @@ def compare(
     directory: a fresh temporary one."""
     import tempfile
 
-    from heli_sitl.comparison import run_compare
+    from heli_sitl.studies.comparison import run_compare
 
     d = Path(out) if out is not None else Path(tempfile.mkdtemp(prefix="heli-compare-"))
     w = Path(work) if work is not None else d / "work"

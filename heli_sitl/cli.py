@@ -16,18 +16,18 @@ from heli_common import cli_args as arg
 from heli_common.config import ConfigError
 from heli_common.defaults import HOME, Exit, ports
 from heli_common.geo import parse_geo_point
-from heli_common.plant_model import PLANT_HELP
 from heli_common.process import UsageError, run_main, stop_on_signals
 from heli_common.rt_priority import add_rt_priority_arg, apply_rt_priority
-from heli_common.servo_link import add_servo_args, servo_map_for
-from heli_common.servo_map import limits_array
-from heli_common.world import World
+from heli_common.vehicle.plant_model import PLANT_HELP
+from heli_common.wire.servo_link import add_servo_args, servo_map_for
+from heli_common.wire.servo_map import limits_array
+from heli_common.world.config import World
 
 if TYPE_CHECKING:
     from autopilot.flight_metrics import FlightMetrics
     from autopilot.pid.gains import PidGains
     from autopilot.scenario import Scenario
-    from heli_common.links import ServoInput
+    from heli_common.wire.links import ServoInput
 
 GAINS_HELP = ("the controller's gain set instead of the scenario's (configs/: gains_paper.toml, "
               "gains_servo_aware.toml for real servos, see docs/servo-aware-gains.md)")
@@ -46,8 +46,8 @@ def _simulate(args: argparse.Namespace) -> int:
     from autopilot.scenario import Scenario
     from autopilot.user_controller import is_user_spec, user_traceback
     from ground.plots import plot_attitude_estimate, plot_estimate, plot_figures, plot_rotor, plot_world
-    from heli_common.plant_model import PlantModel
-    from heli_sitl.closed_loop import SimOptions, simulate
+    from heli_common.vehicle.plant_model import PlantModel
+    from heli_sitl.engine.closed_loop import SimOptions, simulate
 
     scenario = Scenario.load(args.scenario, gains=args.gains)
     if args.trajectory:  # flown from its first point, as hs.simulate(trajectory=...) flies it
@@ -136,8 +136,8 @@ def _simulate(args: argparse.Namespace) -> int:
 def _tune(args: argparse.Namespace) -> int:
     from autopilot.pid.gains import PidGains
     from autopilot.scenario import Scenario
-    from heli_sitl.comparison import command_line
-    from heli_sitl.tune import MarginConstraint, tune, write_gains
+    from heli_sitl.studies.comparison import command_line
+    from heli_sitl.studies.tune import MarginConstraint, tune, write_gains
 
     scenario = Scenario.load(args.scenario, gains=args.gains if args.controller == "tlc" else None)
     start = PidGains.load(args.gains) if args.controller == "pid" and args.gains else None
@@ -171,8 +171,8 @@ def _tune(args: argparse.Namespace) -> int:
 
 
 def _trim(args: argparse.Namespace) -> int:
-    from heli_common.plant_model import PlantModel
-    from heli_common.scenario_file import load_vehicle
+    from heli_common.vehicle.plant_model import PlantModel
+    from heli_common.vehicle.scenario_file import load_vehicle
     from heli_plant.trim import linearize, trim
 
     design = load_vehicle(args.scenario)[0]
@@ -209,8 +209,8 @@ def _margins(args: argparse.Namespace) -> int:
     from autopilot.controllers import build_kernel_controller
     from autopilot.pid.gains import PidGains
     from autopilot.scenario import Scenario
-    from heli_common.plant_model import PlantModel
-    from heli_sitl.loop_linear import linearize_loop, servo_model
+    from heli_common.vehicle.plant_model import PlantModel
+    from heli_sitl.engine.loop_linear import linearize_loop, servo_model
 
     scenario = Scenario.load(args.scenario, gains=args.gains if args.controller == "tlc" else None)
     from autopilot.design_point import MIN_DISK_MARGIN
@@ -267,7 +267,7 @@ def _loop_margins(args: argparse.Namespace, scenario: Scenario, pid: PidGains | 
 
 
 def _compare(args: argparse.Namespace) -> int:
-    from heli_sitl.comparison import command_line, run_compare
+    from heli_sitl.studies.comparison import command_line, run_compare
 
     run_compare(args.file, Path(args.out), Path(args.work), samples=args.samples, seeds=args.seeds,
                 ardupilot_bin=args.ardupilot_bin,
@@ -281,10 +281,10 @@ def _run_ardupilot_json(args: argparse.Namespace) -> int:
     physics (``--model JSON``), listening on UDP 9002 + 10 N (docs/ardupilot-json.md)."""
     import threading
 
-    from heli_common.mavlink.udp import PortBusyError
-    from heli_common.plant_model import PlantModel
-    from heli_common.scenario_file import load_vehicle
-    from heli_common.swashplate import Swashplate
+    from heli_common.vehicle.plant_model import PlantModel
+    from heli_common.vehicle.scenario_file import load_vehicle
+    from heli_common.vehicle.swashplate import Swashplate
+    from heli_common.wire.mavlink.udp import PortBusyError
     from heli_plant.ardupilot_backend import ArduPilotBackend, open_record
     from heli_plant.ardupilot_link import ArduPilotJsonLink, port_for_instance
     from heli_plant.model import Plant
@@ -330,10 +330,10 @@ def _run(args: argparse.Namespace) -> int:
     if args.backend == "ardupilot-json":
         return _run_ardupilot_json(args)
 
-    from heli_common.mavlink.udp import LOOPBACK, MavlinkUdp, PortBusyError
-    from heli_common.plant_model import PlantModel
-    from heli_common.scenario_file import load_vehicle
-    from heli_common.servo_link import load_servo_link, with_overrides
+    from heli_common.vehicle.plant_model import PlantModel
+    from heli_common.vehicle.scenario_file import load_vehicle
+    from heli_common.wire.mavlink.udp import LOOPBACK, MavlinkUdp, PortBusyError
+    from heli_common.wire.servo_link import load_servo_link, with_overrides
     from heli_plant.model import Plant
     from heli_plant.server import PlantServer, SimConfig
 
@@ -376,7 +376,7 @@ def _run(args: argparse.Namespace) -> int:
         except ConfigError as exc:
             raise UsageError(str(exc)) from None
         if servo_in is None and args.ccpm is not None:
-            from heli_common.mavlink.fast import SimCodec
+            from heli_common.wire.mavlink.fast import SimCodec
             from heli_plant.servo_inputs import MavlinkServoInput
 
             servo_in = MavlinkServoInput(link, SimCodec(system_id=1, component_id=51), servos)
@@ -400,7 +400,7 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _up_ardupilot(args: argparse.Namespace) -> int:
-    from heli_sitl import ardupilot
+    from heli_sitl.launch import ardupilot
 
     try:
         firmware = ardupilot.find_firmware(args.ardupilot_bin)
@@ -420,7 +420,7 @@ def _up_ardupilot(args: argparse.Namespace) -> int:
 
 def _up(args: argparse.Namespace) -> int:
     from heli_common.process import terminate_on_sigterm
-    from heli_sitl.demo import DemoError, UpOptions, serve
+    from heli_sitl.launch.demo import DemoError, UpOptions, serve
 
     terminate_on_sigterm()
     if args.firmware == "ardupilot":
@@ -449,7 +449,7 @@ def _demo(args: argparse.Namespace) -> int:
     from ground.plots import plot_figures, plot_rotor, plot_world, read_csv_columns
     from heli_common.process import terminate_on_sigterm
     from heli_common.state import PITCH_LABELS
-    from heli_sitl.demo import DemoError, DemoOptions, run_demo
+    from heli_sitl.launch.demo import DemoError, DemoOptions, run_demo
 
     terminate_on_sigterm()
 
@@ -495,13 +495,13 @@ def _demo(args: argparse.Namespace) -> int:
 
 
 def _campaign(args: argparse.Namespace) -> int:
-    from heli_sitl.campaigns.run import run_campaign
+    from heli_sitl.studies.campaigns.run import run_campaign
 
     summary = run_campaign(args.file, Path(args.out), samples=args.samples, workers=args.workers,
                            scheduler=args.scheduler, quiet=args.quiet,
                            controller=args.controller, figures=not args.no_figures)  # fmt: skip
     if args.via == "processes":
-        from heli_sitl.campaigns.via_processes import compare
+        from heli_sitl.studies.campaigns.via_processes import compare
 
         compare(args.file, Path(args.out), args.limit, samples=args.samples, quiet=args.quiet,
                 controller=args.controller)  # fmt: skip

@@ -31,7 +31,7 @@ def main() -> None:
     from heli_common import frames
     from heli_plant.contact import apply_ground_contact
     from heli_plant.model import Plant
-    from heli_sitl.closed_loop import SimOptions, simulate
+    from heli_sitl.engine.closed_loop import SimOptions, simulate
 
     sc = Scenario.load("paper")
     for kind in BUILT_IN:  # the compiled loop, once per controller kernel it receives
@@ -44,8 +44,8 @@ def main() -> None:
     wrap_pi(4.0)
     apply_ground_contact(np.zeros(12), np.zeros(12))
     # the ArduPilot JSON backend's per-frame path: servo PWM -> pitches, the answer
-    from heli_common.ardupilot_json import json_state_from_plant, state_json
-    from heli_common.swashplate import Swashplate
+    from heli_common.vehicle.swashplate import Swashplate
+    from heli_common.wire.ardupilot_json import json_state_from_plant, state_json
     from heli_plant.sensors.model import specific_force_over_step
 
     swash = Swashplate.load()
@@ -63,7 +63,7 @@ def main() -> None:
     # a user's controller (Python, called tick by tick) and the flight from sensors with
     # the navigation filter: their compiled paths differ from the built-in flight's
     from autopilot.estimation.config import EstimatorConfig
-    from heli_common.world import World
+    from heli_common.world.config import World
 
     simulate(sc, SimOptions(duration_s=0.1, controller=_Hold))
     simulate(sc, SimOptions(duration_s=0.1, world=World.load("noisy"), estimator=EstimatorConfig.load("ins")))

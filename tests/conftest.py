@@ -1,7 +1,7 @@
 """Shared fixtures: the X-Cell airframe, the paper gains and a converged hover equilibrium.
 
 The closed-loop helpers fly the controller kernel and the plant through
-:func:`heli_sitl.closed_loop._run_ticks`, the same compiled loop ``simulate`` uses.
+:func:`heli_sitl.engine.closed_loop._run_ticks`, the same compiled loop ``simulate`` uses.
 """
 
 from __future__ import annotations
@@ -22,14 +22,14 @@ from xdist.workermanage import WorkerController
 from autopilot.reference import N_REF
 from autopilot.tlc.controller import N_DIAG, TLCConstants, TLController
 from autopilot.tlc.gains import Gains
-from heli_common.airframe import Airframe, PlantConstants
 from heli_common.state import N_PITCH, N_STATE, PSI, Z_U, FloatArray
+from heli_common.vehicle.airframe import Airframe, PlantConstants
 from heli_plant.model import Plant
 from heli_plant.rotor import N_ROTOR
 from heli_plant.rotor import OFF as ROTOR_OFF
 from heli_plant.trim import PlantFunction
 from heli_plant.world.model import CalmArrays
-from heli_sitl.closed_loop import SensingArrays, _run_ticks
+from heli_sitl.engine.closed_loop import SensingArrays, _run_ticks
 
 # The first call of a compiled function loads (or compiles) it: no per-example deadline.
 # HYPOTHESIS_PROFILE=thorough runs 20x more examples per property.

@@ -30,7 +30,7 @@ def skip_without_firmware_netns() -> None:
     private network namespace can be made (its TCP 5760-5763 and UDP 9002 stay in one)."""
     import pytest
 
-    from heli_sitl.ardupilot import FirmwareNotFoundError, find_firmware
+    from heli_sitl.launch.ardupilot import FirmwareNotFoundError, find_firmware
 
     try:
         find_firmware(None)

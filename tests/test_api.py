@@ -16,9 +16,9 @@ import heli_sitl as hs
 from autopilot.scenario import Scenario
 from heli_common.config import ConfigError
 from heli_sitl import api
-from heli_sitl.campaigns.flight import metrics as campaign_metrics
-from heli_sitl.campaigns.spec import CampaignSpec
-from heli_sitl.closed_loop import SimOptions, simulate
+from heli_sitl.engine.closed_loop import SimOptions, simulate
+from heli_sitl.studies.campaigns.flight import metrics as campaign_metrics
+from heli_sitl.studies.campaigns.spec import CampaignSpec
 
 
 def test_the_module_examples_run() -> None:

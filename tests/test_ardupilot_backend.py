@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 from ports import new_port
 
-from heli_common.ardupilot_json import MAGIC_16, encode_servo_packet
-from heli_common.scenario_file import load_vehicle
-from heli_common.swashplate import Swashplate
+from heli_common.vehicle.scenario_file import load_vehicle
+from heli_common.vehicle.swashplate import Swashplate
+from heli_common.wire.ardupilot_json import MAGIC_16, encode_servo_packet
 from heli_plant.ardupilot_backend import ArduPilotBackend
 from heli_plant.ardupilot_link import ArduPilotJsonLink
 from heli_plant.model import Plant
@@ -159,7 +159,7 @@ def test_channel_8_runs_the_rotor_plant_up_and_winds_it_down() -> None:
     stopped; ArduPilot's ramp (H_RSC_MODE 2: 0 -> H_RSC_SETPOINT 66 % over H_RSC_RAMP_TIME 1 s)
     runs it up to the design speed, half the set point holds half of it, and the interlock
     off again stops the engine: the rotor winds down on its drag."""
-    from heli_common.plant_model import PlantModel
+    from heli_common.vehicle.plant_model import PlantModel
 
     airframe, x0, _ = load_vehicle("paper", on_ground=True)
     swash = Swashplate.load("swashplate/xcell60-h3-120.toml")

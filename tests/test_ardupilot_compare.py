@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 from netns import skip_without_firmware_netns
 
-from heli_sitl.comparison import FIRMWARE_NOTE
+from heli_sitl.studies.comparison import FIRMWARE_NOTE
 
 pytestmark = [pytest.mark.slow, pytest.mark.netns]
 ROOT = Path(__file__).resolve().parent.parent

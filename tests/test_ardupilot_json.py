@@ -26,7 +26,10 @@ from typing import Any
 import numpy as np
 import pytest
 
-from heli_common.ardupilot_json import (
+from heli_common.frames import NF_POS, NF_QUAT, NF_RATES, NF_VEL, flu_to_frd, state_to_ned_fields
+from heli_common.kinematics import rot_body_to_earth
+from heli_common.state import N_STATE, PHI, PSI, THETA, U_F, V_L, W_U, X_N, Y_W, Z_U
+from heli_common.wire.ardupilot_json import (
     MAGIC_16,
     MAGIC_32,
     PACKET_BYTES,
@@ -39,9 +42,6 @@ from heli_common.ardupilot_json import (
     parse_servo_packet,
     state_json,
 )
-from heli_common.frames import NF_POS, NF_QUAT, NF_RATES, NF_VEL, flu_to_frd, state_to_ned_fields
-from heli_common.kinematics import rot_body_to_earth
-from heli_common.state import N_STATE, PHI, PSI, THETA, U_F, V_L, W_U, X_N, Y_W, Z_U
 from heli_plant.ardupilot_link import ArduPilotJsonLink, port_for_instance
 
 G = 9.80665

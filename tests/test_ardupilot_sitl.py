@@ -19,8 +19,8 @@ from netns import skip_without_firmware_netns
 from autopilot.scenario import Scenario
 from ground.guided import truth_tracking
 from ground.plots import read_csv_columns
-from heli_sitl.guided_record import guided_record
-from heli_sitl.scorecard import score
+from heli_sitl.engine.guided_record import guided_record
+from heli_sitl.studies.scorecard import score
 
 pytestmark = [pytest.mark.slow, pytest.mark.netns]
 SCRIPT = Path(__file__).resolve().parent / "ardupilot_flight.py"

@@ -25,10 +25,10 @@ from scipy import stats
 
 from heli_common.config import ConfigError
 from heli_common.threads import SINGLE_THREAD_ENV
-from heli_sitl.campaigns import engine, report
-from heli_sitl.campaigns.run import prepare, run_campaign
-from heli_sitl.campaigns.sampling import flight_count, sample_table
-from heli_sitl.campaigns.spec import parse
+from heli_sitl.studies.campaigns import engine, report
+from heli_sitl.studies.campaigns.run import prepare, run_campaign
+from heli_sitl.studies.campaigns.sampling import flight_count, sample_table
+from heli_sitl.studies.campaigns.spec import parse
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -160,8 +160,8 @@ def test_the_controller_is_a_campaign_key_and_its_gains_can_vary(tmp_path: Path)
 
     from autopilot.pid.gains import default_pid_gains
     from autopilot.scenario import Scenario
-    from heli_sitl.campaigns.flight import fly, metrics
-    from heli_sitl.closed_loop import SimOptions, simulate
+    from heli_sitl.engine.closed_loop import SimOptions, simulate
+    from heli_sitl.studies.campaigns.flight import fly, metrics
 
     f = tmp_path / "c.toml"
     f.write_text('samples = 2\nseed = 4\nduration_s = 20.0\n[[vary]]\nkey = "pid.rate.kp"\n'
@@ -198,10 +198,10 @@ def test_the_controller_is_a_campaign_key_and_its_gains_can_vary(tmp_path: Path)
 def test_the_plant_is_a_campaign_key(tmp_path: Path) -> None:
     """``plant = "gavrilets"`` flies every sample on the rotor plant: a row is that flight's
     metrics; a plant that does not load is refused before anything flies."""
-    from heli_common.plant_model import PlantModel
-    from heli_sitl.campaigns.flight import fly, metrics
-    from heli_sitl.campaigns.settings import apply
-    from heli_sitl.closed_loop import SimOptions, simulate
+    from heli_common.vehicle.plant_model import PlantModel
+    from heli_sitl.engine.closed_loop import SimOptions, simulate
+    from heli_sitl.studies.campaigns.flight import fly, metrics
+    from heli_sitl.studies.campaigns.settings import apply
 
     body = ('samples = 2\nseed = 4\nduration_s = 10.0\n[[vary]]\nkey = "initial.yaw_error_rad"\n'
             "low = 0.0\nhigh = 0.5\n")
@@ -327,7 +327,7 @@ def test_a_flight_in_a_worker_does_not_fault_its_arrays_in_page_by_page() -> Non
     def faults_per_flight() -> tuple[float, str | None, str | None]:
         import resource
 
-        from heli_sitl.campaigns.flight import fly
+        from heli_sitl.studies.campaigns.flight import fly
 
         fly(spec, base, 0, spec.keys, table[0].tolist())  # the first one may grow the heap
         f0 = resource.getrusage(resource.RUSAGE_THREAD).ru_minflt
@@ -479,7 +479,7 @@ def test_a_killed_campaign_resumes_without_losing_or_repeating_a_flight(tmp_path
 def test_via_processes_flies_the_in_process_rows_again_over_mavlink(tmp_path: Path) -> None:
     """--via processes: a sample's scenario, gains, world and estimator written as files and
     flown by plant and autopilot processes in lockstep give the in-process row's RMS."""
-    from heli_sitl.campaigns.via_processes import compare
+    from heli_sitl.studies.campaigns.via_processes import compare
 
     f = small_file(tmp_path)
     f.write_text(f.read_text().replace("samples = 12", "samples = 2"))
@@ -595,8 +595,8 @@ def test_campaign_plots_survive_a_metric_with_no_finite_bins(tmp_path: Path) -> 
     histogram bins (matplotlib raises): the figure states the range and the run goes on."""
     import pyarrow as pa
 
-    from heli_sitl.campaigns.report import plots
-    from heli_sitl.campaigns.spec import CampaignSpec
+    from heli_sitl.studies.campaigns.report import plots
+    from heli_sitl.studies.campaigns.spec import CampaignSpec
 
     spec = CampaignSpec(name="huge", metrics=("rms_10_m",))
     v = [8.2e16] * 139 + [8.2e16 + 16.0]
@@ -611,7 +611,7 @@ def test_a_campaign_with_failed_flights_exits_non_zero(
 ) -> None:
     """A flight that raised is the bench's fault: the command says so and exits 3 (a flight
     that did not converge is the controller's result and exits 0)."""
-    import heli_sitl.campaigns.run as run
+    import heli_sitl.studies.campaigns.run as run
     from heli_sitl.cli import main
 
     def fake(failed: int) -> object:

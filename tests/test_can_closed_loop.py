@@ -2,7 +2,7 @@
 as DroneCAN ArrayCommands, watched by an independent dronecan Node on the same bus.
 
 Measured here: the RMS 3-D position error over [45, 120] s at 100 Hz (pseudo
-feedforward) over CAN, the same without the bus (``heli_sitl.closed_loop.simulate``, no
+feedforward) over CAN, the same without the bus (``heli_sitl.engine.closed_loop.simulate``, no
 float16 quantisation), and that every command the autopilot sent was decoded by dronecan's
 own Node/handler machinery with the values of the pitches to float16 precision.
 """
@@ -22,8 +22,8 @@ import pytest
 from autopilot.links.can_servo import DEFAULT_NODE_ID
 from autopilot.metrics import FlightRecord
 from autopilot.scenario import Scenario
-from heli_common.can.bus import CanBusConfig, open_bus
-from heli_common.can.dronecan_codec import (
+from heli_common.wire.can.bus import CanBusConfig, open_bus
+from heli_common.wire.can.dronecan_codec import (
     ARRAY_COMMAND,
     COMMAND_TYPE_POSITION,
     DEFAULT_ACTUATOR_IDS,
@@ -31,8 +31,8 @@ from heli_common.can.dronecan_codec import (
     array_command_entries,
     float16_tolerance,
 )
-from heli_sitl.can_closed_loop import CanFlight, fly_over_can
-from heli_sitl.closed_loop import simulate
+from heli_sitl.engine.can_closed_loop import CanFlight, fly_over_can
+from heli_sitl.engine.closed_loop import simulate
 
 RMS_WINDOW_S = (45.0, 120.0)
 RMS_OVER_CAN_M = 0.04012748786  # measured, against 0.04015409608 m in-process (test_closed_loop)

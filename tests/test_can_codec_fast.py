@@ -16,7 +16,7 @@ from dronecan.dsdl import common as dsdl_common
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from heli_common.can.dronecan_codec import (
+from heli_common.wire.can.dronecan_codec import (
     ACTUATOR_COMMAND,
     ARMING_STATUS,
     ARMING_STATUS_DTID,

@@ -46,8 +46,8 @@ def test_the_world_flies_over_can_too(tmp_path: Path) -> None:
     does in-process, up to the float16 commands (the same air, seeded). The autostart form
     (no ground script): the buses as clean as through the README's command."""
     from autopilot.scenario import Scenario
-    from heli_common.world import World
-    from heli_sitl.closed_loop import SimOptions, simulate
+    from heli_common.world.config import World
+    from heli_sitl.engine.closed_loop import SimOptions, simulate
 
     reason = unshare_reason()
     if reason is not None:

@@ -28,8 +28,8 @@ from dronecan import transport
 from netns import unshare_reason
 
 from autopilot.links.can_servo import CanServoSender
-from heli_common.airframe import PitchLimits
-from heli_common.can.bus import (
+from heli_common.vehicle.airframe import PitchLimits
+from heli_common.wire.can.bus import (
     CanBus,
     CanBusConfig,
     CanBusError,
@@ -37,7 +37,7 @@ from heli_common.can.bus import (
     open_bus,
     parse_bus_spec,
 )
-from heli_common.can.dronecan_codec import (
+from heli_common.wire.can.dronecan_codec import (
     ACTUATOR_COMMAND,
     ARRAY_COMMAND,
     ARRAY_COMMAND_DTID,

@@ -1,4 +1,4 @@
-"""CCPM on this bench's own servo outputs (heli_common.servo_map.CcpmMap, ``--ccpm``): the
+"""CCPM on this bench's own servo outputs (heli_common.wire.servo_map.CcpmMap, ``--ccpm``): the
 autopilot mixes blade pitches to the head's four servos (swash 1-3, tail) and the plant reads
 them back through the same swashplate ArduPilot's servo frames go through."""
 
@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from heli_common.config import ConfigError
-from heli_common.servo_link import DEFAULT_SWASHPLATE, servo_map_for
-from heli_common.servo_map import CcpmMap, DirectMap, limits_array, to_pwm_us
-from heli_common.swashplate import Swashplate
-from heli_sitl.demo import DemoOptions, run_demo
+from heli_common.vehicle.swashplate import Swashplate
+from heli_common.wire.servo_link import DEFAULT_SWASHPLATE, servo_map_for
+from heli_common.wire.servo_map import CcpmMap, DirectMap, limits_array, to_pwm_us
+from heli_sitl.launch.demo import DemoOptions, run_demo
 
 LIMITS = limits_array(((-0.1, 0.3), (-0.35, 0.35), (-0.14, 0.14), (-0.14, 0.14)))
 

@@ -25,9 +25,9 @@ from vehicle import free_ports, spawn_up
 from autopilot import cli as autopilot_cli
 from ground import cli as ground_cli
 from ground.plots import read_csv_columns
-from heli_common.mavlink.udp import LOOPBACK, MavlinkUdp
+from heli_common.wire.mavlink.udp import LOOPBACK, MavlinkUdp
 from heli_sitl import cli as sitl_cli
-from heli_sitl.children import spawn
+from heli_sitl.launch.children import spawn
 
 BAD_OPTIONS = [
     (sitl_cli.main, ["run", "--port", "99999"], "--port"),
@@ -200,7 +200,7 @@ def test_the_streamed_run_csv_is_the_records_csv(tmp_path: Path, rotor: bool) ->
     past +-pi between flushes, the rotor plant's columns where its truth comes) is byte for
     byte the csv the whole record writes at the end."""
     from autopilot.runner import Recorder
-    from heli_common.mavlink.sim_protocol import StateSample
+    from heli_common.wire.mavlink.sim_protocol import StateSample
 
     rng = np.random.default_rng(3)
     r = Recorder(capacity=7, stream_csv=tmp_path / "run.csv", flush_every=5)

@@ -1,4 +1,4 @@
-"""Closed loop (heli_sitl.closed_loop.simulate): the paper scenario against the spec's bounds,
+"""Closed loop (heli_sitl.engine.closed_loop.simulate): the paper scenario against the spec's bounds,
 linearised stability of hover and climb, a climb in simulation and rate sensitivity."""
 
 from __future__ import annotations
@@ -26,11 +26,11 @@ from autopilot.tlc.controller import (
 )
 from autopilot.tlc.gains import Gains
 from autopilot.trajectory.analytic import StraightLine
-from heli_common.airframe import Airframe
 from heli_common.state import N_PITCH, N_STATE, OMEGA, PHI, THETA, VEL, Z_U, FloatArray
+from heli_common.vehicle.airframe import Airframe
 from heli_plant.dynamics import derivative
 from heli_plant.model import Plant, accept_pitches, plant_step
-from heli_sitl.closed_loop import SimOptions, simulate
+from heli_sitl.engine.closed_loop import SimOptions, simulate
 
 # --- the paper scenario --------------------------------------------------------------------------
 

@@ -15,10 +15,10 @@ from hypothesis import strategies as st
 from autopilot.pid.gains import PidGains
 from autopilot.scenario import Scenario
 from heli_common.config import ConfigError
-from heli_sitl.closed_loop import SimOptions, simulate
-from heli_sitl.comparison import Contender, largest_converged, load_compare, run_compare
-from heli_sitl.scorecard import score
-from heli_sitl.tune import (
+from heli_sitl.engine.closed_loop import SimOptions, simulate
+from heli_sitl.studies.comparison import Contender, largest_converged, load_compare, run_compare
+from heli_sitl.studies.scorecard import score
+from heli_sitl.studies.tune import (
     CONSTRAINT_COST_M,
     Knob,
     MarginConstraint,

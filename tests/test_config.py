@@ -10,8 +10,8 @@ import pytest
 
 from autopilot.scenario import Scenario
 from autopilot.tlc.gains import Gains
-from heli_common.airframe import Airframe
 from heli_common.config import CONFIG_DIR, ConfigError
+from heli_common.vehicle.airframe import Airframe
 
 AIRFRAME = (CONFIG_DIR / "xcell60.toml").read_text()
 GAINS = (CONFIG_DIR / "gains_paper.toml").read_text()

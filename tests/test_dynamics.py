@@ -14,8 +14,8 @@ from numpy.testing import assert_allclose
 from scipy.optimize import fsolve
 from scipy.spatial.transform import Rotation
 
-from heli_common.airframe import Airframe, PlantConstants
 from heli_common.state import EULER, N_STATE, OMEGA, POS, VEL, Z_U, FloatArray
+from heli_common.vehicle.airframe import Airframe, PlantConstants
 from heli_plant.dynamics import derivative, forces_torques, rigid_body, rotor_loads
 from heli_plant.model import Plant, plant_step
 

@@ -17,8 +17,8 @@ from autopilot.metrics import FlightRecord
 from autopilot.scenario import Scenario
 from heli_common.config import ConfigError
 from heli_common.state import N_STATE, PHI, X_N, Z_U
-from heli_sitl.campaigns.spec import load_campaign
-from heli_sitl.scorecard import score
+from heli_sitl.studies.campaigns.spec import load_campaign
+from heli_sitl.studies.scorecard import score
 
 RATE_HZ = 100.0
 ROOT = Path(__file__).resolve().parent.parent
@@ -148,7 +148,7 @@ def test_the_rotor_aware_tlc_is_lost_where_the_linkage_is_not_its_design(gain: f
     100, every A_lon >= 3.5)."""
     import dataclasses
 
-    from heli_common.plant_model import PlantModel
+    from heli_common.vehicle.plant_model import PlantModel
 
     model = PlantModel.load("gavrilets")
     assert model.rotor is not None

@@ -42,8 +42,8 @@ from autopilot.estimation.kf import (
 )
 from heli_common.config import ConfigError
 from heli_common.kinematics import euler_rate_matrix, rot_body_to_earth
-from heli_common.measurements import AttitudeSample, BaroSample, GpsFix, ImuSample, Vec3
 from heli_common.state import N_STATE, PSI, FloatArray
+from heli_common.wire.measurements import AttitudeSample, BaroSample, GpsFix, ImuSample, Vec3
 
 RATE_HZ = 100.0
 DT = 1.0 / RATE_HZ

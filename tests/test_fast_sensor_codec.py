@@ -1,7 +1,7 @@
 """SimCodec's sensor datagram (HIL_SENSOR, HIL_GPS, AHRS2) against pymavlink 2.4.50: same bytes,
 same values, and one corrupted frame costs only that frame.
 
-The project's dialect (``heli_common.mavlink.udp.mavlink2``, pymavlink's ``development``) has
+The project's dialect (``heli_common.wire.mavlink.udp.mavlink2``, pymavlink's ``development``) has
 HIL_SENSOR and HIL_GPS but not AHRS2, an ArduPilot message: the reference packer and parser
 are ``ardupilotmega``, whose HIL_SENSOR and HIL_GPS are checked to be the project dialect's.
 """
@@ -21,7 +21,7 @@ from hypothesis import strategies as st
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import ardupilotmega as apm
 
-from heli_common.mavlink.fast import (
+from heli_common.wire.mavlink.fast import (
     MSG_ID_AHRS2,
     MSG_ID_HIL_GPS,
     MSG_ID_HIL_SENSOR,
@@ -31,7 +31,7 @@ from heli_common.mavlink.fast import (
     HilSensor,
     SimCodec,
 )
-from heli_common.mavlink.udp import mavlink2
+from heli_common.wire.mavlink.udp import mavlink2
 
 # at least ~200 examples per property; the ``thorough`` profile runs more
 N_EXAMPLES = max(200, settings().max_examples)

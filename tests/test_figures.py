@@ -18,8 +18,8 @@ import pytest
 
 from autopilot.metrics import ref_column
 from ground.plots import plot_estimate, plot_figures
-from heli_sitl.campaigns.report import plots
-from heli_sitl.campaigns.spec import CampaignSpec, Vary
+from heli_sitl.studies.campaigns.report import plots
+from heli_sitl.studies.campaigns.spec import CampaignSpec, Vary
 
 METRICS = ("rms_10_m", "max_tilt_rad", "converged", "diverged")
 

@@ -23,7 +23,7 @@ from ground.cli import build_parser
 from ground.plots import read_csv_columns
 from heli_common.config import CONFIG_DIR, ConfigError
 from heli_common.state import X_N, Z_U
-from heli_sitl.demo import _written
+from heli_sitl.launch.demo import _written
 
 ROOT = Path(__file__).resolve().parent.parent
 LINE = "0,0,0,5\n10,5,0,5\n20,5,5,5\n"

@@ -17,9 +17,9 @@ from autopilot.flight.modes import Mode
 from autopilot.links.mavlink_modes import REPORTED
 from autopilot.trajectory.analytic import StraightLine
 from heli_common.geo import GeoPoint
-from heli_common.mavlink import mission_items as ms
-from heli_common.mavlink import modes as wm
-from heli_common.mavlink.mission_items import MissionItem
+from heli_common.wire.mavlink import mission_items as ms
+from heli_common.wire.mavlink import modes as wm
+from heli_common.wire.mavlink.mission_items import MissionItem
 
 HOME = GeoPoint(47.4, 8.5, 488.0)
 ON_GROUND = np.zeros(12)

@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 
 from autopilot.scenario import Scenario
-from heli_common.mavlink.sim_protocol import pitches_as_received
-from heli_common.measurements import NEW_GPS, OUT_GPS_POS
-from heli_common.sensors import Gps, Imu, Sensors
-from heli_common.world import World, with_sim_param
+from heli_common.wire.mavlink.sim_protocol import pitches_as_received
+from heli_common.wire.measurements import NEW_GPS, OUT_GPS_POS
+from heli_common.world.config import World, with_sim_param
+from heli_common.world.sensors import Gps, Imu, Sensors
 from heli_plant.model import Plant
-from heli_sitl.closed_loop import SimOptions, simulate
+from heli_sitl.engine.closed_loop import SimOptions, simulate
 
 DURATION_S = 30.0  # the climb and the slope change's approach: enough to tell flights apart
 
@@ -131,7 +131,7 @@ def test_a_scripted_gps_outage_withholds_the_fixes_valid_inside_it(paper: Scenar
 
 @pytest.mark.slow
 def test_sensor_study_finds_where_gps_errors_cost_half_a_metre(tmp_path) -> None:  # type: ignore[no-untyped-def]
-    """python -m heli_sitl.sensor_study (one seed), on the navigation filter told each GPS:
+    """python -m heli_sitl.studies.sensor_study (one seed), on the navigation filter told each GPS:
     it averages white GPS noise (9.4 m of it before the paper flight's RMS[45,120] reaches
     0.5 m, measured), re-propagation absorbs latency (2 s costs 0.10 m against 0.09 m at
     none), and a slow wander goes through until the filter, dead-reckoning on an ideal IMU,
@@ -139,7 +139,7 @@ def test_sensor_study_finds_where_gps_errors_cost_half_a_metre(tmp_path) -> None
     metre the error levels off at 0.53-0.58 m)."""
     import json
 
-    from heli_sitl.sensor_study import WANDER_M, main
+    from heli_sitl.studies.sensor_study import WANDER_M, main
 
     assert main(["--out", str(tmp_path), "--seeds", "1"]) == 0
     sw = json.loads((tmp_path / "sensor_study.json").read_text())["sweep"]
@@ -158,10 +158,10 @@ def test_a_resent_datagram_is_not_fused_twice() -> None:
     seen under load: the fix was fused twice and lockstep parted from in-process by 5 mm)."""
     from autopilot.links.mavlink_sim import Measurements
     from heli_common.defaults import HOME
-    from heli_common.mavlink.fast import SimCodec
-    from heli_common.mavlink.sim_protocol import StateSample
-    from heli_common.measurements import NEW_BARO, NEW_IMU, NEW_MAG
-    from heli_common.sensor_wire import BARO_FIELD, IMU_FIELDS, MAG_FIELDS
+    from heli_common.wire.mavlink.fast import SimCodec
+    from heli_common.wire.mavlink.sim_protocol import StateSample
+    from heli_common.wire.measurements import NEW_BARO, NEW_IMU, NEW_MAG
+    from heli_common.wire.sensor_wire import BARO_FIELD, IMU_FIELDS, MAG_FIELDS
 
     codec = SimCodec(1, 51)
     imu = (0.0, 0.0, -9.81, 0.0, 0.0, 0.0)

@@ -36,7 +36,7 @@ from autopilot.links.mavlink_gcs import (
     _FairInbox,
 )
 from autopilot.params_table import SPECS
-from heli_common.mavlink.udp import LOOPBACK, mavlink2
+from heli_common.wire.mavlink.udp import LOOPBACK, mavlink2
 
 m2 = mavlink2
 ADVERSARY = 252  # the system id both sockets use

@@ -20,10 +20,10 @@ from test_ground_client import client, gwp, running_vehicle
 
 from autopilot.params_table import SPECS
 from ground.client import GroundClient
-from heli_common.mavlink import mission_items as ms
-from heli_common.mavlink import modes as wm
-from heli_common.mavlink.udp import Message, mavlink2
-from heli_sitl.children import spawn
+from heli_common.wire.mavlink import mission_items as ms
+from heli_common.wire.mavlink import modes as wm
+from heli_common.wire.mavlink.udp import Message, mavlink2
+from heli_sitl.launch.children import spawn
 
 m2 = mavlink2
 UNKNOWN_IDS = (299, 300, 397, 435, 436, 437, 12_900, 65_535, 16_777_215)  # not built / not defined

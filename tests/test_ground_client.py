@@ -39,10 +39,10 @@ from ground.client import (
 from ground.files import write_waypoints
 from heli_common.frames import flip
 from heli_common.geo import GeoPoint, nwu_to_geo
-from heli_common.mavlink import mission_items as ms
-from heli_common.mavlink.mission_items import MissionItem
-from heli_common.mavlink.udp import Message, mavlink2
-from heli_sitl.children import Child
+from heli_common.wire.mavlink import mission_items as ms
+from heli_common.wire.mavlink.mission_items import MissionItem
+from heli_common.wire.mavlink.udp import Message, mavlink2
+from heli_sitl.launch.children import Child
 
 m2 = mavlink2
 HOME = GeoPoint(47.397742, 8.545594, 488.0)  # heli-autopilot's default --home

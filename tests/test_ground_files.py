@@ -18,8 +18,8 @@ from autopilot.trajectory.analytic import PaperSpiralCircle
 from ground import files
 from ground.files import FileFormatError, TrajectorySamples
 from heli_common.geo import GeoPoint, nwu_to_geo
-from heli_common.mavlink import mission_items as ms
-from heli_common.mavlink.mission_items import MissionItem
+from heli_common.wire.mavlink import mission_items as ms
+from heli_common.wire.mavlink.mission_items import MissionItem
 
 HOME = GeoPoint(47.397742, 8.545594, 488.0)
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
@@ -73,7 +73,7 @@ def test_waypoints_as_mavproxy_reads_them(tmp_path: Path) -> None:
     from pymavlink import mavutil, mavwp
 
     # mavutil picks MAVLink 1 or 2 from $MAVLINK20 when first imported and mavwp asks again
-    # when it builds items; heli_common.mavlink.udp may set it in between: make them agree.
+    # when it builds items; heli_common.wire.mavlink.udp may set it in between: make them agree.
     mavutil.set_dialect("common")
     items = sample_mission()
     p = tmp_path / "m.waypoints"

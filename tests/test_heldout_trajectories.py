@@ -23,11 +23,11 @@ from autopilot.trajectory.waypoints import FlightLimits, build_waypoint_trajecto
 from heli_common.config import ConfigError, build
 from heli_common.frames import flip
 from heli_common.geo import GeoPoint
-from heli_common.gusts import gust_factor
-from heli_common.mavlink import mission_items as ms
 from heli_common.state import PHI, THETA
-from heli_common.world import World
-from heli_sitl.closed_loop import SimOptions, simulate
+from heli_common.wire.mavlink import mission_items as ms
+from heli_common.world.config import World
+from heli_common.world.gusts import gust_factor
+from heli_sitl.engine.closed_loop import SimOptions, simulate
 
 SCENARIOS = ("figure_eight", "aggressive_turn", "position_step", "hover_gust")
 DT = 1e-3  # the dense grid the reference is checked on [s]

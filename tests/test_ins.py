@@ -11,7 +11,7 @@ import pytest
 from autopilot.estimation import ins
 from autopilot.estimation.config import EstimatorConfig, InsConfig
 from heli_common.kinematics import quat_from_euler, rot_body_to_earth, rot_from_quat
-from heli_common.magnetic import earth_field_nwu_gauss
+from heli_common.world.magnetic import earth_field_nwu_gauss
 
 HOME_FIELD = np.array(earth_field_nwu_gauss(47.397742, 8.545594))
 G = 9.81
@@ -158,7 +158,7 @@ def test_the_filter_is_consistent_over_20_seeded_flights_of_the_consumer_sensors
     84.5 % of the ticks inside), and every final gyro bias within 3 sigma (1.95 measured).
     gps-typical alone has an ideal IMU and compass: its six bias states sit exactly at the
     prior's mean, add nothing to NEES, and its mean is 4.6 (docs/estimator.md)."""
-    from heli_sitl.nav_study import consistency
+    from heli_sitl.studies.nav_study import consistency
 
     c = consistency("consumer", 20)
     print(c.table())
@@ -220,7 +220,7 @@ def test_a_gps_outage_in_hover_grows_the_position_sigma_over_the_drift(tmp_path)
 
     import heli_sitl as hs
     from autopilot.estimation.log import EST_LOG_COLUMNS
-    from heli_common.world import World
+    from heli_common.world.config import World
 
     configs = Path(__file__).resolve().parent.parent / "configs"
     scenario = tmp_path / "hover.toml"

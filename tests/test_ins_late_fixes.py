@@ -11,7 +11,7 @@ import numpy as np
 from autopilot.estimation import ins
 from autopilot.estimation.config import EstimatorConfig
 from heli_common.kinematics import rot_body_to_earth
-from heli_common.magnetic import earth_field_nwu_gauss
+from heli_common.world.magnetic import earth_field_nwu_gauss
 
 FIELD = np.array(earth_field_nwu_gauss(47.397742, 8.545594))
 G = 9.81

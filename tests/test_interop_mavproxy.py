@@ -39,10 +39,10 @@ from ground.files import read_waypoints, write_waypoints
 from heli_common.config import CONFIG_DIR as CONFIGS
 from heli_common.frames import flip
 from heli_common.geo import GeoPoint, nwu_to_geo
-from heli_common.mavlink import mission_items as ms
-from heli_common.mavlink.mission_items import MissionItem
-from heli_common.mavlink.udp import Message
-from heli_sitl.children import die_with_parent
+from heli_common.wire.mavlink import mission_items as ms
+from heli_common.wire.mavlink.mission_items import MissionItem
+from heli_common.wire.mavlink.udp import Message
+from heli_sitl.launch.children import die_with_parent
 
 HOME = GeoPoint(47.397742, 8.545594, 488.0)
 START_S = 60.0
@@ -54,7 +54,7 @@ class MavProxy:
     def __init__(self, master_port: int, workdir: Path, env: dict[str, str] | None = None) -> None:
         cmd = [sys.executable, "-m", "MAVProxy.mavproxy", f"--master=udpin:127.0.0.1:{master_port}",
                "--no-state", f"--state-basedir={workdir}", "--source-system=255"]  # fmt: skip
-        # heli_sitl.demo.spawn gives no stdin pipe; the same parent-death signal is kept.
+        # heli_sitl.launch.demo.spawn gives no stdin pipe; the same parent-death signal is kept.
         self.proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                      stderr=subprocess.STDOUT, cwd=workdir, env=env,
                                      preexec_fn=die_with_parent)  # fmt: skip

@@ -32,7 +32,7 @@ from vehicle import free_ports, spawn_up
 
 from heli_common.frames import flip
 from heli_common.geo import GeoPoint, nwu_to_geo
-from heli_common.mavlink import mission_items as ms
+from heli_common.wire.mavlink import mission_items as ms
 
 HOME = GeoPoint(47.397742, 8.545594, 488.0)
 START_S = 60.0

@@ -16,12 +16,14 @@ from autopilot.estimation import log as est_log
 from autopilot.estimation.config import EstimatorConfig
 from autopilot.pid import controller as pid
 from autopilot.tlc import controller as tlc
-from heli_common import frames, measurements, sensor_wire, servo_model
+from heli_common import frames
 from heli_common.geo import GeoPoint
 from heli_common.layout import Layout
-from heli_common.sensors import Sensors
 from heli_common.state import N_PITCH, N_STATE
-from heli_common.world import World
+from heli_common.wire import measurements, sensor_wire
+from heli_common.world import servo_model
+from heli_common.world.config import World
+from heli_common.world.sensors import Sensors
 from heli_plant import rotor
 from heli_plant.sensors import model as sensors
 from heli_plant.world import model as world

@@ -23,21 +23,21 @@ from autopilot.estimation.config import EstimatorConfig
 from autopilot.metrics import EST_CSV_STATE, FlightRecord
 from autopilot.scenario import Scenario
 from ground.plots import read_csv_columns
-from heli_common import servo_map
-from heli_common.mavlink.fast import HilActuatorControls, SimCodec
-from heli_common.mavlink.sim_protocol import (
+from heli_common.state import EULER, N_PITCH, N_STATE, OMEGA, PITCH_LABELS, POS, VEL, FloatArray
+from heli_common.vehicle.plant_model import PlantModel
+from heli_common.wire import servo_map
+from heli_common.wire.mavlink.fast import HilActuatorControls, SimCodec
+from heli_common.wire.mavlink.sim_protocol import (
     StateAssembler,
     decode_command,
     encode_state,
     pitches_as_received,
     state_as_received,
 )
-from heli_common.plant_model import PlantModel
-from heli_common.state import EULER, N_PITCH, N_STATE, OMEGA, PITCH_LABELS, POS, VEL, FloatArray
-from heli_common.world import World
+from heli_common.world.config import World
 from heli_plant.model import accept_pitches
-from heli_sitl.closed_loop import SimOptions, simulate
-from heli_sitl.demo import DemoOptions, run_demo
+from heli_sitl.engine.closed_loop import SimOptions, simulate
+from heli_sitl.launch.demo import DemoOptions, run_demo
 
 POSITION = ("x_m", "y_m", "z_m")
 WIRE_TOL_M = 1e-9  # the bound; measured: 0.0 for every shipped preset and gain set

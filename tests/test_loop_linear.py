@@ -1,4 +1,4 @@
-"""The whole closed loop linearised (heli_sitl.loop_linear) against simulation."""
+"""The whole closed loop linearised (heli_sitl.engine.loop_linear) against simulation."""
 
 from __future__ import annotations
 
@@ -10,11 +10,11 @@ import pytest
 
 from autopilot.controllers import build_controller
 from autopilot.scenario import Scenario
-from heli_common.plant_model import PlantModel
 from heli_common.state import EPS
-from heli_common.world import Servos, World
-from heli_sitl.closed_loop import SimOptions, simulate
-from heli_sitl.loop_linear import linearize_loop, servo_model
+from heli_common.vehicle.plant_model import PlantModel
+from heli_common.world.config import Servos, World
+from heli_sitl.engine.closed_loop import SimOptions, simulate
+from heli_sitl.engine.loop_linear import linearize_loop, servo_model
 
 SC = Scenario.load("paper")
 
@@ -61,7 +61,7 @@ def test_margins_match_python_controls_disk_margins() -> None:
     break point's loop built as a python-control system (ct.feedback) and its disk margin."""
     import control as ct
 
-    from heli_sitl.loop_linear import OMEGA_RAD_S, loop_blocks
+    from heli_sitl.engine.loop_linear import OMEGA_RAD_S, loop_blocks
 
     sv = World.load("servos-default").servos
     blocks = loop_blocks(_tlc(), PlantModel.load("paper"), SC.airframe, sv)
@@ -90,7 +90,7 @@ def test_linearisation_pipeline_on_loop_4_alone_has_the_known_answer() -> None:
 
     from autopilot.tlc.controller import Feedforward, make_constants
     from heli_plant.trim import jacobian
-    from heli_sitl.loop_linear import Discrete, balanced_disk, loop_at_a_time
+    from heli_sitl.engine.loop_linear import Discrete, balanced_disk, loop_at_a_time
 
     k = make_constants(SC.airframe, SC.gains, 100.0, Feedforward.PSEUDO)
     dt, j, j_inv = k.dt_s, k.j, k.j_inv
@@ -204,8 +204,8 @@ def test_a_delay_of_several_ticks_linearises_as_the_flights_realise_it() -> None
     """The tick map keeps the servos' delay ring in canonical order (the next slot to write
     first), so that one map serves every tick: commands through it reach the blades exactly as
     through the flights' own turning ring, here with sloppy-servos' two-tick delay."""
-    from heli_common.servo_model import SS_FIFO, servo_state, servo_step, servo_table
-    from heli_sitl.loop_linear import canonical_fifo
+    from heli_common.world.servo_model import SS_FIFO, servo_state, servo_step, servo_table
+    from heli_sitl.engine.loop_linear import canonical_fifo
 
     limits = np.array(SC.airframe.limits.as_tuple())
     params = servo_table(World.load("sloppy-servos").servos, limits, 0.01)

@@ -1,4 +1,4 @@
-"""The magnetometer and the GPS receiver's status: the earth's field model (heli_common.magnetic)
+"""The magnetometer and the GPS receiver's status: the earth's field model (heli_common.world.magnetic)
 against the dipole's analytic values and the full IGRF at real places, the sensor's output
 against ``R^T m + hard iron + step + noise``, ideal when off (the truth bit for bit), its noise
 statistics, freeze and step, the HIL_SENSOR / HIL_GPS codec (against pymavlink's bytes), and
@@ -24,14 +24,14 @@ from pymavlink.dialects.v20 import ardupilotmega as apm
 
 from autopilot.links.mavlink_sim import Measurements
 from autopilot.scenario import Scenario
-from heli_common import magnetic
 from heli_common.defaults import HOME
 from heli_common.geo import GeoPoint
 from heli_common.jit import njit
 from heli_common.kinematics import rot_body_to_earth
-from heli_common.mavlink.fast import HilGps, HilSensor, SimCodec
-from heli_common.mavlink.sim_protocol import StateSample
-from heli_common.measurements import (
+from heli_common.state import N_STATE, PHI, PSI, THETA, FloatArray
+from heli_common.wire.mavlink.fast import HilGps, HilSensor, SimCodec
+from heli_common.wire.mavlink.sim_protocol import StateSample
+from heli_common.wire.measurements import (
     GPS_FIX_3D,
     N_OUT,
     NEW_ATT,
@@ -48,7 +48,7 @@ from heli_common.measurements import (
     OUT_MAG,
     OUT_MAG_T,
 )
-from heli_common.sensor_wire import (
+from heli_common.wire.sensor_wire import (
     ACCURACY_CM_MAX,
     ACCURACY_UNKNOWN,
     BARO_FIELD,
@@ -59,9 +59,9 @@ from heli_common.sensor_wire import (
     home_array,
     to_wire_resolution,
 )
-from heli_common.sensors import PRESETS, Gps, Mag, Sensors, preset, validate
-from heli_common.state import N_STATE, PHI, PSI, THETA, FloatArray
-from heli_common.world import World
+from heli_common.world import magnetic
+from heli_common.world.config import World
+from heli_common.world.sensors import PRESETS, Gps, Mag, Sensors, preset, validate
 from heli_plant.model import Plant
 from heli_plant.sensors.model import (
     GPS_ACCURACY_FLOOR_M,
@@ -74,7 +74,7 @@ from heli_plant.sensors.model import (
     sensor_step,
 )
 from heli_plant.sensors.sensing import encode_measurements
-from heli_sitl.closed_loop import SimOptions, simulate
+from heli_sitl.engine.closed_loop import SimOptions, simulate
 
 G = 9.81
 DEG = math.pi / 180.0

@@ -36,8 +36,8 @@ from autopilot.analysis.margins import (
 )
 from autopilot.scenario import Scenario
 from autopilot.tlc.gains import Gains
-from heli_common.world import World
-from heli_sitl.closed_loop import SimOptions, simulate
+from heli_common.world.config import World
+from heli_sitl.engine.closed_loop import SimOptions, simulate
 
 PRESETS = ("calm", "breezy", "gusty", "servos-default", "sloppy-servos", "heavy-10pct", "everything")
 GAIN_FILES = ("gains_paper.toml", "gains_servo_aware.toml")

@@ -1,4 +1,4 @@
-"""heli_common.mavlink.fast against pymavlink 2.4.50: same bytes, same values, robust decoding."""
+"""heli_common.wire.mavlink.fast against pymavlink 2.4.50: same bytes, same values, robust decoding."""
 
 from __future__ import annotations
 
@@ -19,9 +19,10 @@ from pymavlink.dialects.v20 import common as m2
 
 from heli_common import frames
 from heli_common.kinematics import rot_body_to_earth
-from heli_common.mavlink import fast as mavlink_fast
-from heli_common.mavlink import sim_protocol
-from heli_common.mavlink.fast import (
+from heli_common.state import EULER, N_STATE, VEL
+from heli_common.wire.mavlink import fast as mavlink_fast
+from heli_common.wire.mavlink import sim_protocol
+from heli_common.wire.mavlink.fast import (
     Attitude,
     Decoded,
     HilActuatorControls,
@@ -30,7 +31,6 @@ from heli_common.mavlink.fast import (
     SimCodec,
     hil_alt_vel,
 )
-from heli_common.state import EULER, N_STATE, VEL
 
 U8 = st.integers(0, 255)
 U64 = st.integers(0, 2**64 - 1)

@@ -26,13 +26,13 @@ from autopilot.metrics import CSV_HEADER
 from ground import cli
 from ground.files import write_waypoints
 from ground.log import TlogError, TlogStats, read_tlog, tlog_columns, tlog_time_origin
-from heli_common import servo_map
-from heli_common.airframe import Airframe
 from heli_common.geo import GeoPoint, nwu_to_geo
-from heli_common.mavlink import mission_items as ms
-from heli_common.mavlink.mission_items import MissionItem
-from heli_common.mavlink.udp import TlogWriter
-from heli_sitl.children import Child, die_with_parent, spawn
+from heli_common.vehicle.airframe import Airframe
+from heli_common.wire import servo_map
+from heli_common.wire.mavlink import mission_items as ms
+from heli_common.wire.mavlink.mission_items import MissionItem
+from heli_common.wire.mavlink.udp import TlogWriter
+from heli_sitl.launch.children import Child, die_with_parent, spawn
 
 HOME = GeoPoint(47.397742, 8.545594, 488.0)
 MAVLOGDUMP = Path(sys.executable).with_name("mavlogdump.py")

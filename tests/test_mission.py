@@ -17,8 +17,8 @@ from pymavlink.dialects.v20 import common as mavlink
 from autopilot.mission.checks import ItemLimits, check_item
 from autopilot.mission.server import MissionServer
 from heli_common.geo import GeoPoint, geo_to_nwu_m, nwu_to_geo
-from heli_common.mavlink import mission_items as ms
-from heli_common.mavlink.mission_items import MissionItem
+from heli_common.wire.mavlink import mission_items as ms
+from heli_common.wire.mavlink.mission_items import MissionItem
 
 HOME = GeoPoint(47.397742, 8.545594, 488.0)
 GCS = (255, 190)

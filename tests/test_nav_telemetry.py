@@ -12,7 +12,7 @@ from pymavlink.dialects.v20 import ardupilotmega as apm
 from autopilot import nav_telemetry as nt
 from autopilot.estimation.nav import NavStatus
 from heli_common.geo import GeoPoint, nwu_to_geo
-from heli_common.measurements import (
+from heli_common.wire.measurements import (
     N_OUT,
     OUT_GPS_EPH_M,
     OUT_GPS_EPV_M,

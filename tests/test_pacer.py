@@ -1,6 +1,6 @@
 """A ground station in the ArduPilot JSON lockstep: the pacer (heli_plant.pacer; real UDP on
 loopback, the physics side is the Pacer on a fake clock, the client a plain socket), and the guided flight's
-record read by the comparison's scorecard (heli_sitl.guided_record)."""
+record read by the comparison's scorecard (heli_sitl.engine.guided_record)."""
 
 from __future__ import annotations
 
@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 
 from autopilot.scenario import Scenario
-from heli_common.ardupilot_json import encode_pace
-from heli_common.mavlink.udp import LOOPBACK
 from heli_common.state import PITCH_LABELS, STATE_NAMES
+from heli_common.wire.ardupilot_json import encode_pace
+from heli_common.wire.mavlink.udp import LOOPBACK
 from heli_plant.pacer import Pacer
-from heli_sitl.guided_record import guided_record
-from heli_sitl.scorecard import score
+from heli_sitl.engine.guided_record import guided_record
+from heli_sitl.studies.scorecard import score
 
 
 class FakeClock:
@@ -115,7 +115,7 @@ def test_a_silent_client_releases_the_physics_and_bad_datagrams_are_counted(
 
 
 def test_a_guided_flight_reads_into_the_scorecard(tmp_path: Path) -> None:
-    """heli_sitl.guided_record: plant.csv (truth, NWU, the firmware's clock) and track.csv
+    """heli_sitl.engine.guided_record: plant.csv (truth, NWU, the firmware's clock) and track.csv
     (the targets streamed, NED) into a FlightRecord; a vehicle 0.2 m north of a target that
     moves east at 1 m/s scores a steady RMS of 0.2 m and a 1 m/s reference."""
     t = np.arange(0.0, 30.0, 0.01)

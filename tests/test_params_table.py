@@ -21,8 +21,8 @@ from autopilot.params_table import (
     ParamTable,
 )
 from autopilot.tlc.gains import Gains
-from heli_common.airframe import Airframe
 from heli_common.geo import GeoPoint
+from heli_common.vehicle.airframe import Airframe
 
 GAINS = Gains.load()
 AIRFRAME = Airframe.load()
@@ -358,7 +358,7 @@ def test_the_world_knobs_read_and_set_as_parameters() -> None:
     """SIM_ parameters start at the loaded world's values, are range-checked like the rest,
     and the table's world() is the loaded world with them applied (a knob set to the value
     it has changes nothing, even where the file sets servos one by one)."""
-    from heli_common.world import World
+    from heli_common.world.config import World
 
     sc_world = World.load("everything")
     t = ParamTable(GAINS, AIRFRAME.limits, 100.0, world=sc_world)

@@ -23,8 +23,8 @@ from autopilot.pid.gains import PidGains
 from autopilot.reference import N_REF
 from autopilot.scenario import Scenario
 from autopilot.tlc.controller import D_TILT_LIMITED
-from heli_common.airframe import Airframe
-from heli_sitl.closed_loop import SimOptions, simulate
+from heli_common.vehicle.airframe import Airframe
+from heli_sitl.engine.closed_loop import SimOptions, simulate
 
 
 @pytest.mark.parametrize("gains_file", ["starts/pid_table2.toml", "gains_pid.toml"])
@@ -101,7 +101,7 @@ def test_both_controllers_fly_the_paper_in_process_and_nothing_else_changes() ->
 @pytest.mark.slow
 def test_pid_in_lockstep_processes_flies_the_in_process_flight(tmp_path: Path) -> None:
     from ground.plots import read_csv_columns
-    from heli_sitl.demo import DemoOptions, run_demo
+    from heli_sitl.launch.demo import DemoOptions, run_demo
 
     rec = simulate(Scenario.load("paper"), SimOptions(duration_s=30.0, controller="pid"))
     opts = DemoOptions(mode="lockstep", out=tmp_path, timeout_s=600, via_ground=False, duration_s=30.0,

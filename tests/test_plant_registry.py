@@ -12,13 +12,13 @@ import numpy as np
 import pytest
 
 import heli_sitl as hs
-from heli_common.airframe import Airframe
 from heli_common.config import ConfigError
-from heli_common.plant_model import PLANT_ENTRY_POINT_GROUP, PlantModel
 from heli_common.state import THETA_M, FloatArray
+from heli_common.vehicle.airframe import Airframe
+from heli_common.vehicle.plant_model import PLANT_ENTRY_POINT_GROUP, PlantModel
 from heli_plant import dynamics
 from heli_plant.vehicle import VehicleModel
-from heli_sitl.demo import DemoOptions, run_demo
+from heli_sitl.launch.demo import DemoOptions, run_demo
 
 HEAVY = f"{Path(__file__).resolve()}:HeavyXCell"
 REGISTERED = "heavy-xcell"
@@ -90,7 +90,7 @@ def test_a_world_around_a_plant_of_your_own_is_refused_not_ignored() -> None:
     with pytest.raises(ValueError, match=r"flies the ideal world \(world 'breezy' asks for air"):
         hs.simulate(plant=HEAVY, world="breezy", duration_s=1.0)
     with pytest.raises(ConfigError, match=r"is not a heli_plant\.vehicle\.VehicleModel"):
-        hs.simulate(plant="heli_common.airframe:Airframe")
+        hs.simulate(plant="heli_common.vehicle.airframe:Airframe")
 
 
 @pytest.mark.processes

@@ -17,12 +17,12 @@ from ports import new_port
 from vehicle import free_ports, spawn_up
 
 from heli_common import port_handoff
-from heli_common.mavlink.udp import LOOPBACK, MavlinkUdp, bind_udp
 from heli_common.port_handoff import ENV, HeldPorts
+from heli_common.wire.mavlink.udp import LOOPBACK, MavlinkUdp, bind_udp
 
 CHILD = """
 import os, socket, sys
-from heli_common.mavlink.udp import bind_udp
+from heli_common.wire.mavlink.udp import bind_udp
 port = int(sys.argv[1])
 s = bind_udp(("127.0.0.1", port))
 s.setblocking(True)

@@ -22,11 +22,11 @@ from ports import new_port
 
 from autopilot.metrics import CSV_HEADER, ref_column
 from ground.plots import read_csv_columns
-from heli_common.airframe import Airframe
-from heli_common.mavlink.sim_protocol import command_message, state_messages
-from heli_common.mavlink.udp import LOOPBACK, MavlinkUdp, mavlink2
-from heli_common.servo_map import limits_array
-from heli_sitl.children import Child, spawn
+from heli_common.vehicle.airframe import Airframe
+from heli_common.wire.mavlink.sim_protocol import command_message, state_messages
+from heli_common.wire.mavlink.udp import LOOPBACK, MavlinkUdp, mavlink2
+from heli_common.wire.servo_map import limits_array
+from heli_sitl.launch.children import Child, spawn
 
 pytestmark = pytest.mark.slow
 LIMITS = limits_array(Airframe.load().limits.as_tuple())
@@ -156,7 +156,7 @@ def test_a_vehicle_lost_in_lockstep_ends_the_run_at_once_saying_so(tmp_path: Pat
     the sim link accepts at 55.5 s). The plant ends the run with "vehicle lost" and the
     launcher says so at once, instead of waiting out its timeout for an answer to a state
     no autopilot accepts."""
-    from heli_sitl.demo import DemoError, DemoOptions, run_demo
+    from heli_sitl.launch.demo import DemoError, DemoOptions, run_demo
 
     configs = Path(__file__).resolve().parent.parent / "configs"
     text = (configs / "scenario_paper.toml").read_text()

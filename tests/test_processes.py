@@ -19,12 +19,12 @@ from ports import new_port
 
 from autopilot.scenario import Scenario
 from ground.plots import read_csv_columns
-from heli_common.mavlink.sim_protocol import command_message, state_messages
-from heli_common.mavlink.udp import LOOPBACK, MavlinkUdp, mavlink2
 from heli_common.port_handoff import HeldPorts
-from heli_sitl.children import Child, spawn
-from heli_sitl.closed_loop import SimOptions, simulate
-from heli_sitl.demo import DemoError, DemoOptions, UpOptions, run_demo, up_commands
+from heli_common.wire.mavlink.sim_protocol import command_message, state_messages
+from heli_common.wire.mavlink.udp import LOOPBACK, MavlinkUdp, mavlink2
+from heli_sitl.engine.closed_loop import SimOptions, simulate
+from heli_sitl.launch.children import Child, spawn
+from heli_sitl.launch.demo import DemoError, DemoOptions, UpOptions, run_demo, up_commands
 
 pytestmark = pytest.mark.slow
 

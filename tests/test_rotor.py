@@ -1,4 +1,4 @@
-"""Rotor maps (heli_common.rotor, Zhu & Huo eqs 16-17, 34) and the spec's hover sanity numbers."""
+"""Rotor maps (heli_common.vehicle.rotor, Zhu & Huo eqs 16-17, 34) and the spec's hover sanity numbers."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 from numpy.testing import assert_allclose
 
-from heli_common.airframe import Airframe, PlantConstants
-from heli_common.rotor import pitch_from_thrust_coeff, thrust_coeff, torque_coeff
+from heli_common.vehicle.airframe import Airframe, PlantConstants
+from heli_common.vehicle.rotor import pitch_from_thrust_coeff, thrust_coeff, torque_coeff
 from heli_plant.dynamics import rotor_loads
 
 _C = Airframe.load().constants()

@@ -14,16 +14,16 @@ from pymavlink import mavutil
 
 from autopilot.scenario import Scenario
 from ground.plots import read_csv_columns
-from heli_common.airframe import Airframe
 from heli_common.config import ConfigError
-from heli_common.plant_model import PlantModel, hover_check
 from heli_common.state import EPS, N_STATE, P_X, Q_Y, R_Z, THETA_M, U_F, W_U, Z_U
-from heli_common.world import World
+from heli_common.vehicle.airframe import Airframe
+from heli_common.vehicle.plant_model import PlantModel, hover_check
+from heli_common.world.config import World
 from heli_plant import rotor
 from heli_plant.dynamics import gravity_flu
 from heli_plant.trim import PlantFunction, linearize, trim
-from heli_sitl.closed_loop import SimOptions, simulate
-from heli_sitl.demo import DemoOptions, run_demo
+from heli_sitl.engine.closed_loop import SimOptions, simulate
+from heli_sitl.launch.demo import DemoOptions, run_demo
 
 GAV = PlantModel.load("gavrilets")
 DESIGN = Airframe.load()

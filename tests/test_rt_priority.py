@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from heli_common.rt_priority import current_policy, request_fifo
-from heli_sitl.demo import DemoOptions, run_demo
+from heli_sitl.launch.demo import DemoOptions, run_demo
 
 ROOT = Path(__file__).resolve().parent.parent
 PROBE = ("from heli_common.rt_priority import request_fifo, current_policy; "

@@ -17,8 +17,8 @@ from autopilot.scenario import Scenario
 from autopilot.tick_timer import CONTROL, TickTimer
 from autopilot.tlc.controller import TLController
 from heli_common.geo import GeoPoint
-from heli_common.mavlink.sim_protocol import StateSample
 from heli_common.state import FloatArray
+from heli_common.wire.mavlink.sim_protocol import StateSample
 
 # a period that binary floating point holds exactly (1/128 s), from a start that it also
 # holds: every deadline, sleep and lateness is then exact, so counts and zeros are exact too

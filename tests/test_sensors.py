@@ -28,7 +28,9 @@ from numpy.testing import assert_allclose
 
 from heli_common.config import ConfigError
 from heli_common.jit import njit
-from heli_common.sensors import (
+from heli_common.state import EULER, N_STATE, OMEGA, PHI, POS, PSI, THETA, U_F, Z_U, FloatArray
+from heli_common.world.config import SIM_PARAM_NAMES, WORLD_SIM_PARAMS, World
+from heli_common.world.sensors import (
     PRESETS,
     SIM_SENSOR_PARAM_NAMES,
     SIM_SENSOR_PARAMS,
@@ -42,8 +44,6 @@ from heli_common.sensors import (
     validate,
     with_sensor_param,
 )
-from heli_common.state import EULER, N_STATE, OMEGA, PHI, POS, PSI, THETA, U_F, Z_U, FloatArray
-from heli_common.world import SIM_PARAM_NAMES, WORLD_SIM_PARAMS, World
 from heli_plant.sensors import model
 from heli_plant.sensors.model import (
     N_OUT,
@@ -326,8 +326,8 @@ def test_on_the_ground_with_thrust_short_of_the_weight_the_accelerometer_reads_g
     or a lift-off that thrust cannot hold): the ground's reaction holds it, so the
     accelerometer reads +g up, not the free fall of the bare derivative; one metre up, the
     same pitches (no thrust) are a free fall: zero specific force."""
-    from heli_common.airframe import Airframe
     from heli_common.defaults import HOME
+    from heli_common.vehicle.airframe import Airframe
     from heli_plant.sensors.sensing import Sensing
 
     af = Airframe.load()
@@ -402,7 +402,7 @@ def test_streams_do_not_collide_with_the_world() -> None:
 _PY_SCRIPT = """
 import json, sys
 import numpy as np
-from heli_common.sensors import preset
+from heli_common.world.sensors import preset
 from heli_plant.sensors.model import SensorModel
 g, h, xs, accs = json.load(sys.stdin)
 m = SensorModel(preset("noisy"), h, g)

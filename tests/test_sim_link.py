@@ -18,17 +18,17 @@ from autopilot.runner import Runner, RunnerConfig
 from autopilot.scenario import Scenario
 from autopilot.tlc.controller import S_I1, S_I4, TLController
 from autopilot.trajectory.analytic import StraightLine
-from heli_common import servo_map
-from heli_common.airframe import Airframe
 from heli_common.geo import GeoPoint
-from heli_common.mavlink.sim_protocol import (
+from heli_common.vehicle.airframe import Airframe
+from heli_common.wire import servo_map
+from heli_common.wire.mavlink.sim_protocol import (
     StateAssembler,
     StateSample,
     command_message,
     decode_command,
     state_messages,
 )
-from heli_common.mavlink.udp import LOOPBACK, MavlinkUdp, PortBusyError, mavlink2
+from heli_common.wire.mavlink.udp import LOOPBACK, MavlinkUdp, PortBusyError, mavlink2
 
 LIMITS = servo_map.limits_array(Airframe.load().limits.as_tuple())
 angles = st.floats(-1.2, 1.2)

@@ -1,4 +1,4 @@
-"""Intervals (heli_sitl.stats) against their known answers."""
+"""Intervals (heli_sitl.studies.stats) against their known answers."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from heli_sitl.stats import loss_rate, paired, percentile_ci
+from heli_sitl.studies.stats import loss_rate, paired, percentile_ci
 
 
 def test_zero_lost_of_1000_is_not_zero() -> None:

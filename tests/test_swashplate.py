@@ -1,4 +1,4 @@
-"""The swashplate (heli_common.swashplate): ArduPilot's mixing against its source's formulas and
+"""The swashplate (heli_common.vehicle.swashplate): ArduPilot's mixing against its source's formulas and
 against PWMs recorded from the firmware binary; the physical head's round trips, signs, limits
 and bad input; the X-Cell file and its .parm agreeing by construction."""
 
@@ -11,10 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from heli_common.airframe import Airframe
 from heli_common.config import CONFIG_DIR, ConfigError, as_table
 from heli_common.state import EPS, ETA, THETA_M, THETA_T
-from heli_common.swashplate import (
+from heli_common.vehicle.airframe import Airframe
+from heli_common.vehicle.swashplate import (
     ArduPilotHeli,
     Swashplate,
     SwashType,

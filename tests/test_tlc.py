@@ -30,10 +30,10 @@ from autopilot.tlc.differentiator import diff_reset, diff_step, discretize
 from autopilot.tlc.gains import Gains
 from autopilot.tlc.inversion import force_to_thrust_attitude, limit_tilt, yaw_rate_command
 from autopilot.tlc.loops import a3_matrix, a4_matrix, a4_times
-from heli_common.airframe import Airframe, PlantConstants
 from heli_common.kinematics import euler_rates
-from heli_common.rotor import pitch_from_thrust_coeff
 from heli_common.state import N_STATE, Z_U, FloatArray
+from heli_common.vehicle.airframe import Airframe, PlantConstants
+from heli_common.vehicle.rotor import pitch_from_thrust_coeff
 from heli_plant.dynamics import rotor_loads
 from heli_plant.model import Plant
 

@@ -17,19 +17,19 @@ from autopilot.tlc.controller import S_FLAP_HAT, S_SENT, S_SERVO, STATE, TLContr
 from autopilot.tlc.gains import Gains
 from autopilot.tlc.rotor_aware import command_filter, observe_flapping, rotor_aware_constants
 from ground.plots import read_csv_columns
-from heli_common import servo_model
-from heli_common.airframe import Airframe
-from heli_common.plant_model import PlantModel
 from heli_common.state import EPS, ETA, N_PITCH, N_STATE, P_X, Q_Y
-from heli_common.world import World
+from heli_common.vehicle.airframe import Airframe
+from heli_common.vehicle.plant_model import PlantModel
+from heli_common.world import servo_model
+from heli_common.world.config import World
 from heli_plant import rotor
 from heli_plant.trim import PlantFunction, trim
-from heli_sitl.campaigns.flight import metrics
-from heli_sitl.campaigns.spec import CampaignSpec
-from heli_sitl.closed_loop import SimOptions, simulate
-from heli_sitl.demo import DemoOptions, run_demo
-from heli_sitl.loop_linear import linearize_loop
-from heli_sitl.loop_linear import servo_model as servo_preset
+from heli_sitl.engine.closed_loop import SimOptions, simulate
+from heli_sitl.engine.loop_linear import linearize_loop
+from heli_sitl.engine.loop_linear import servo_model as servo_preset
+from heli_sitl.launch.demo import DemoOptions, run_demo
+from heli_sitl.studies.campaigns.flight import metrics
+from heli_sitl.studies.campaigns.spec import CampaignSpec
 
 GAINS = Gains.load("gains_tlc_rotor.toml")
 DESIGN = Airframe.load()

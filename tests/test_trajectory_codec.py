@@ -20,8 +20,8 @@ from autopilot.trajectory.analytic import PaperSpiralCircle
 from autopilot.trajectory.sampled import SampledTrajectory
 from autopilot.trajectory.waypoints import WaypointTrajectory
 from heli_common.geo import GeoPoint
-from heli_common.mavlink import mission_items as ms
-from heli_common.mavlink.mission_items import MissionItem
+from heli_common.wire.mavlink import mission_items as ms
+from heli_common.wire.mavlink.mission_items import MissionItem
 
 HOME = GeoPoint(47.397742, 8.545594, 488.0)
 
@@ -254,7 +254,7 @@ def test_decoded_spiral_matches_analytic_away_from_the_corner() -> None:
 def test_uploaded_spiral_flies_like_the_in_process_reproduction() -> None:
     """The whole point: the paper scenario flown from the decoded upload vs the analytic one."""
     from autopilot.scenario import Scenario
-    from heli_sitl.closed_loop import simulate
+    from heli_sitl.engine.closed_loop import simulate
 
     sc = Scenario.load("paper")
     decoded = codec.decode(codec.encode_trajectory(sc.trajectory, 0.5, breaks_s=[40.0]))

@@ -18,7 +18,7 @@ from autopilot.trajectory.analytic import PaperSpiralCircle
 from autopilot.trajectory.csv_table import ACCELERATION, POSITION, VELOCITY
 from heli_common.config import CONFIG_DIR, ConfigError
 from heli_common.state import PHI, THETA
-from heli_sitl.closed_loop import simulate
+from heli_sitl.engine.closed_loop import simulate
 
 # the paper's circle (10 m, 80 s), climbing at 0.5 m/s all along: smooth, every axis moving
 HELIX = PaperSpiralCircle(climb_end_s=80.0, duration_s=80.0)

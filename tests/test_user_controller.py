@@ -17,9 +17,9 @@ from autopilot.controller_names import ENTRY_POINT_GROUP, registered
 from autopilot.scenario import Scenario
 from autopilot.user_controller import UserController, is_user_spec, load_class, normalise_spec
 from heli_common.config import ConfigError
-from heli_common.world import World
-from heli_sitl.closed_loop import SimOptions, simulate
-from heli_sitl.demo import DemoOptions, run_demo
+from heli_common.world.config import World
+from heli_sitl.engine.closed_loop import SimOptions, simulate
+from heli_sitl.launch.demo import DemoOptions, run_demo
 
 ROOT = Path(__file__).resolve().parent.parent
 HERE = Path(__file__).resolve().parent

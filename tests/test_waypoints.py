@@ -26,8 +26,8 @@ from heli_common.geo import (
     ned_to_geo,
     nwu_to_geo,
 )
-from heli_common.mavlink import mission_items as ms
-from heli_common.mavlink.mission_items import MissionItem
+from heli_common.wire.mavlink import mission_items as ms
+from heli_common.wire.mavlink.mission_items import MissionItem
 
 HOME = GeoPoint(47.397742, 8.545594, 488.0)
 LIM = FlightLimits()

@@ -17,8 +17,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 from numpy.testing import assert_allclose
 
-from heli_common.airframe import Airframe
-from heli_common.rotor import pitch_from_thrust_coeff, thrust_coeff, torque_coeff
+from heli_common.vehicle.airframe import Airframe
+from heli_common.vehicle.rotor import pitch_from_thrust_coeff, thrust_coeff, torque_coeff
 from heli_plant.dynamics import rotor_loads
 from heli_plant.world import air
 from heli_plant.world.air import (
@@ -49,7 +49,7 @@ def main_thrust(u: float = 0.0, v: float = 0.0, w: float = 0.0, theta: float = T
     return main_rotor_loads_in_air(theta, u, v, w, C, TIP_M, 1.0, 0.0)[0]
 
 
-# --- hover: the air-free rotor map of heli_common.rotor, exactly --------------------------------
+# --- hover: the air-free rotor map of heli_common.vehicle.rotor, exactly --------------------------------
 
 
 @pytest.mark.parametrize("rotor", sorted(ROTORS))

@@ -13,17 +13,17 @@ import pytest
 from autopilot.metrics import FlightRecord
 from autopilot.scenario import Scenario
 from autopilot.trajectory.analytic import StraightLine
-from heli_common import rotor
 from heli_common.config import ConfigError
 from heli_common.kinematics import rot_body_to_earth
-from heli_common.scenario_file import InitialState
 from heli_common.state import EPS, ETA, PHI, PSI, THETA, THETA_M
-from heli_common.world import AirLoads as Air
-from heli_common.world import Disturbance, Mismatch, Wind, World
+from heli_common.vehicle import rotor
+from heli_common.vehicle.scenario_file import InitialState
+from heli_common.world.config import AirLoads as Air
+from heli_common.world.config import Disturbance, Mismatch, Wind, World
 from heli_plant.dynamics import forces_from_loads, rotor_loads
 from heli_plant.model import Plant
 from heli_plant.world import air
-from heli_sitl.closed_loop import SimOptions, simulate
+from heli_sitl.engine.closed_loop import SimOptions, simulate
 
 PRESETS = ("calm", "breezy", "gusty", "servos-default", "sloppy-servos", "heavy-10pct", "everything")
 HOVER_M = (0.0, 0.0, 10.0)

@@ -14,9 +14,9 @@ from ports import new_port
 from autopilot.estimation.config import EstimatorConfig
 from autopilot.scenario import Scenario
 from ground.plots import read_csv_columns
-from heli_common.world import World
-from heli_sitl.closed_loop import SimOptions, simulate
-from heli_sitl.demo import DemoOptions, run_demo
+from heli_common.world.config import World
+from heli_sitl.engine.closed_loop import SimOptions, simulate
+from heli_sitl.launch.demo import DemoOptions, run_demo
 
 pytestmark = pytest.mark.slow
 
@@ -95,7 +95,7 @@ def test_a_live_sim_wind_change_reaches_the_plant_and_the_log(tmp_path: Path) ->
     import time
 
     from ground.client import GroundClient
-    from heli_common.mavlink.udp import TlogWriter
+    from heli_common.wire.mavlink.udp import TlogWriter
 
     scenario = tmp_path / "scenario_hover.toml"
     configs = Path(__file__).resolve().parent.parent / "configs"

@@ -1,4 +1,4 @@
-"""Servo chain (heli_common.servo_model) against the analytic responses of its elements."""
+"""Servo chain (heli_common.world.servo_model) against the analytic responses of its elements."""
 
 from __future__ import annotations
 
@@ -9,7 +9,8 @@ import numpy.typing as npt
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
-from heli_common.servo_model import (
+from heli_common.state import EPS, ETA, N_PITCH, THETA_M, THETA_T, FloatArray
+from heli_common.world.servo_model import (
     N_SERVO_PARAM,
     SP_ALPHA,
     SP_DELAY_STEPS,
@@ -24,7 +25,6 @@ from heli_common.servo_model import (
     servo_state,
     servo_step,
 )
-from heli_common.state import EPS, ETA, N_PITCH, THETA_M, THETA_T, FloatArray
 
 H = 0.0025  # plant step [s]
 LIMIT = 1.0  # wide limits [rad]: off unless a test narrows them

@@ -22,9 +22,9 @@ import scipy.signal
 import scipy.stats
 from numpy.testing import assert_allclose
 
-from heli_common.gusts import gust_factor, mean_wind_nwu
 from heli_common.jit import njit
 from heli_common.state import FloatArray
+from heli_common.world.gusts import gust_factor, mean_wind_nwu
 from heli_plant.world import noise
 from heli_plant.world.noise import STREAM_TURB_U, STREAM_TURB_V, normal, normal_pair
 from heli_plant.world.wind import (

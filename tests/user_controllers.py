@@ -8,8 +8,8 @@ import numpy as np
 
 from autopilot.tlc.controller import TLController
 from autopilot.tlc.gains import Gains
-from heli_common.airframe import Airframe
 from heli_common.state import FloatArray
+from heli_common.vehicle.airframe import Airframe
 
 
 class WrappedTLC:

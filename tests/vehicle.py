@@ -7,7 +7,7 @@ from typing import NamedTuple
 
 from ports import new_port
 
-from heli_sitl.children import Child, spawn
+from heli_sitl.launch.children import Child, spawn
 
 
 class UpPorts(NamedTuple):

@@ -85,9 +85,9 @@ import control as ct
 import numpy as np
 
 from autopilot.tlc.gains import Gains, LoopGains
-from heli_common.airframe import Airframe
-from heli_common.plant_model import RotorPlant
-from heli_common.world import Servos
+from heli_common.vehicle.airframe import Airframe
+from heli_common.vehicle.plant_model import RotorPlant
+from heli_common.world.config import Servos
 
 LOOP_CHANNELS: dict[int, tuple[str, str, str]] = {
     1: ("x", "y", "z"),

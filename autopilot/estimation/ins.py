@@ -66,7 +66,8 @@ from heli_common.kinematics import (
     rot_from_quat,
 )
 from heli_common.layout import Layout
-from heli_common.measurements import (
+from heli_common.state import PHI, PSI, THETA, U_F, V_L, W_U, X_N, FloatArray
+from heli_common.wire.measurements import (
     NEW_BARO,
     NEW_GPS,
     NEW_MAG,
@@ -80,7 +81,6 @@ from heli_common.measurements import (
     OUT_MAG,
     OUT_MAG_T,
 )
-from heli_common.state import PHI, PSI, THETA, U_F, V_L, W_U, X_N, FloatArray
 
 # --- the error state: the covariance's order
 ERR = Layout(
@@ -421,7 +421,7 @@ def make_params(
     config: EstimatorConfig, rate_hz: float, field_nwu_gauss: tuple[float, float, float] = (0.0, 0.0, 0.0)
 ) -> FloatArray:
     """The flat parameter vector for ``config`` at tick rate ``rate_hz``; the earth's
-    magnetic field at home (earth NWU; :mod:`heli_common.magnetic`), what the magnetometer
+    magnetic field at home (earth NWU; :mod:`heli_common.world.magnetic`), what the magnetometer
     is compared with (all zero: no magnetometer fusion)."""
     declination_rad = math.atan2(-field_nwu_gauss[1], field_nwu_gauss[0])
     if not 10.0 <= rate_hz <= 2000.0:

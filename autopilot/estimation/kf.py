@@ -49,7 +49,8 @@ from autopilot.estimation.log import (
 from heli_common.jit import njit
 from heli_common.kinematics import euler_rates, rot_body_to_earth, wrap_pi
 from heli_common.layout import Layout
-from heli_common.measurements import (
+from heli_common.state import EULER, N_STATE, OMEGA, P_X, PHI, PSI, THETA, U_F, V_L, W_U, X_N, FloatArray
+from heli_common.wire.measurements import (
     NEW_ATT,
     NEW_BARO,
     NEW_GPS,
@@ -66,7 +67,6 @@ from heli_common.measurements import (
     GpsFix,
     ImuSample,
 )
-from heli_common.state import EULER, N_STATE, OMEGA, P_X, PHI, PSI, THETA, U_F, V_L, W_U, X_N, FloatArray
 
 # --- per-axis filter state [p, v, b] and the axes
 AXIS_STATE = Layout("estimator axis state", ("p", 1), ("v", 1), ("b", 1))
@@ -746,7 +746,7 @@ def est_tick(
     params: FloatArray, st: FloatArray, t_s: float, meas: FloatArray, mask: int, use_baro: bool,
     x_out: FloatArray,
 ) -> int:  # fmt: skip
-    """One tick on the measurement layout of :mod:`heli_common.measurements` (``meas`` holds
+    """One tick on the measurement layout of :mod:`heli_common.wire.measurements` (``meas`` holds
     each sensor's latest sample, ``mask`` says which are new): predict with the latest IMU
     sample (held between samples), the attitude sample if new; fuse a new GPS fix and (if
     ``use_baro``) a new baro height at their validity times; write the estimate into

@@ -15,7 +15,7 @@ import dataclasses
 import math
 
 from autopilot.estimation.config import EstimatorConfig
-from heli_common.sensors import Sensors
+from heli_common.world.sensors import Sensors
 
 # the floors: the filter's own model error, as a noise of each kind (docs/estimator.md)
 GYRO_DENSITY_FLOOR = 2e-5  # [rad/s/rtHz]

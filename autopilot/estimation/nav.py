@@ -23,8 +23,8 @@ from autopilot.estimation.config import EstimatorConfig
 from heli_common.geo import GeoPoint
 from heli_common.jit import njit
 from heli_common.layout import Layout
-from heli_common.magnetic import earth_field_nwu_gauss
 from heli_common.state import FloatArray
+from heli_common.world.magnetic import earth_field_nwu_gauss
 
 HEADER = Layout("navigation header", ("kind", 1), ("use_baro", 1))
 H_KIND = HEADER.offset("kind")
@@ -36,7 +36,7 @@ KIND_AHRS, KIND_INS = 0.0, 1.0
 def make_nav_params(config: EstimatorConfig, rate_hz: float, home: GeoPoint | None = None) -> FloatArray:
     """The parameter array of ``config`` at ``rate_hz``; the home gives the navigation
     filter the earth's field its magnetometer is compared with (the same field model as
-    the plant's magnetometer, :mod:`heli_common.magnetic`, as ArduPilot takes its
+    the plant's magnetometer, :mod:`heli_common.world.magnetic`, as ArduPilot takes its
     declination from a table; none: no magnetometer fusion)."""
     head = np.zeros(N_HEADER)
     head[H_USE_BARO] = 1.0 if config.use_baro else 0.0

@@ -1,7 +1,7 @@
 """The estimator as the autopilot runs it: the vehicle's measurements in, a state out.
 
 The component beside the controller: the runner hands it what the sim link delivered (the
-measurement layout of :mod:`heli_common.measurements`, a mask of what is new, the sensors'
+measurement layout of :mod:`heli_common.wire.measurements`, a mask of what is new, the sensors'
 time) and flies on what it returns. It calls the same compiled tick as the in-process loop
 (:func:`~autopilot.estimation.nav.nav_tick`), so a lockstep flight and an in-process one
 see the same estimates. It keeps the estimator's log for est.csv and reports its health.
@@ -27,8 +27,8 @@ from autopilot.estimation.nav import (
     nav_tick,
 )
 from heli_common.geo import GeoPoint
-from heli_common.measurements import N_OUT, OUT_ACCEL
 from heli_common.state import N_STATE, FloatArray
+from heli_common.wire.measurements import N_OUT, OUT_ACCEL
 
 
 class NavHealth(NamedTuple):

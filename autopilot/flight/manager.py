@@ -27,9 +27,9 @@ from autopilot.trajectory.waypoints import FlightLimits, WaypointTrajectory
 from autopilot.trajectory_codec import mission_to_trajectory
 from heli_common import frames
 from heli_common.geo import GeoPoint
-from heli_common.mavlink import mission_items as ms
-from heli_common.mavlink.mission_items import MissionItem
 from heli_common.state import Z_U, FloatArray
+from heli_common.wire.mavlink import mission_items as ms
+from heli_common.wire.mavlink.mission_items import MissionItem
 
 DEFAULT_TAKEOFF_ALT_M = 2.5
 TAKEOFF_ALT_RANGE_M = (0.5, 500.0)

@@ -8,7 +8,7 @@ It reads no clock: the runner passes the tick time. A frame the bus refuses (ful
 interface down, driver error) is counted, logged (at most once a second) and the rest of
 that transfer is not sent (a receiver would drop a partial transfer anyway); the next
 tick sends the next command. Encoding is dronecan's (see
-:mod:`heli_common.can.dronecan_codec`); python-can is driven directly because
+:mod:`heli_common.wire.can.dronecan_codec`); python-can is driven directly because
 dronecan 1.0.27's own python-can driver does not work with python-can >= 4.4.
 
 """
@@ -22,13 +22,16 @@ from collections.abc import Sequence
 import numpy as np
 import numpy.typing as npt
 
-from heli_common.can.bus import (
+from heli_common.closing import Closing
+from heli_common.ratelog import RateLimitedLog
+from heli_common.state import N_PITCH, FloatArray
+from heli_common.wire.can.bus import (
     CanBus,
     CanBusConfig,
     CanSendError,
     open_bus,
 )
-from heli_common.can.dronecan_codec import (
+from heli_common.wire.can.dronecan_codec import (
     DEFAULT_ACTUATOR_IDS,
     HEALTH_OK,
     HEALTH_WARNING,
@@ -38,9 +41,6 @@ from heli_common.can.dronecan_codec import (
     CanFrame,
     NodeStatusEncoder,
 )
-from heli_common.closing import Closing
-from heli_common.ratelog import RateLimitedLog
-from heli_common.state import N_PITCH, FloatArray
 
 log = logging.getLogger(__name__)
 
@@ -187,7 +187,7 @@ class CanServoSender(Closing):
 
 
 class CanServoOutput:
-    """The runner's :class:`heli_common.links.ServoOutput` over DroneCAN: the pitches of
+    """The runner's :class:`heli_common.wire.links.ServoOutput` over DroneCAN: the pitches of
     each tick, stamped with its time, and the arming state as DroneCAN ArmingStatus."""
 
     def __init__(self, sender: CanServoSender) -> None:

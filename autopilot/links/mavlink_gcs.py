@@ -5,7 +5,7 @@ SITL: one sends to 127.0.0.1:14550 (ground stations: QGroundControl, MAVProxy), 
 127.0.0.1:14540 (API clients: MAVSDK); each answers whoever talks to it. It runs as a tick
 hook of the runner, so every handler sees the runner's time ``t_s`` and never a clock.
 
-Modes: :mod:`heli_common.mavlink.modes` (the vehicle's own custom-mode numbers, the
+Modes: :mod:`heli_common.wire.mavlink.modes` (the vehicle's own custom-mode numbers, the
 standard modes microservice, DO_SET_MODE, DO_SET_STANDARD_MODE and SET_MODE).
 """
 
@@ -38,13 +38,13 @@ from heli_common import frames
 from heli_common.defaults import HOME, ports
 from heli_common.geo import GeoPoint, nwu_to_geo
 from heli_common.kinematics import rot_body_to_earth
-from heli_common.mavlink import modes as wm
-from heli_common.mavlink.mission_items import MissionItem
-from heli_common.mavlink.sim_protocol import StateSample
-from heli_common.mavlink.udp import LOOPBACK, Address, MavlinkUdp, Message, mavlink2
 from heli_common.ratelog import RateLimitedLog
-from heli_common.servo_map import ServoMap
 from heli_common.state import EULER, POS, VEL, FloatArray
+from heli_common.wire.mavlink import modes as wm
+from heli_common.wire.mavlink.mission_items import MissionItem
+from heli_common.wire.mavlink.sim_protocol import StateSample
+from heli_common.wire.mavlink.udp import LOOPBACK, Address, MavlinkUdp, Message, mavlink2
+from heli_common.wire.servo_map import ServoMap
 
 log = logging.getLogger("autopilot.gcs")
 m2 = mavlink2

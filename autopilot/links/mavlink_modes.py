@@ -1,4 +1,4 @@
-"""What each wire mode (heli_common.mavlink.modes) asks of the flight logic, and which wire
+"""What each wire mode (heli_common.wire.mavlink.modes) asks of the flight logic, and which wire
 mode each flight mode is reported as."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ from collections.abc import Callable
 
 from autopilot.flight import commands as c
 from autopilot.flight.modes import Mode
-from heli_common.mavlink import modes as wm
+from heli_common.wire.mavlink import modes as wm
 
 COMMAND: dict[wm.WireMode, Callable[[], c.Command]] = {
     wm.HOLD: c.Hold, wm.MISSION: c.SelectMission, wm.RETURN: c.ReturnToLaunch, wm.LAND: c.Land,

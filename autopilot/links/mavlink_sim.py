@@ -7,20 +7,22 @@ import math
 
 import numpy as np
 
-from heli_common import frames, servo_map
+from heli_common import frames
 from heli_common.closing import Closing
 from heli_common.defaults import HOME
 from heli_common.geo import GeoPoint
-from heli_common.mavlink.fast import ActuatorOutputStatus, Ahrs2, HilGps, HilSensor, SimCodec, WindCov
-from heli_common.mavlink.sim_protocol import (
+from heli_common.state import FloatArray
+from heli_common.wire import servo_map
+from heli_common.wire.mavlink.fast import ActuatorOutputStatus, Ahrs2, HilGps, HilSensor, SimCodec, WindCov
+from heli_common.wire.mavlink.sim_protocol import (
     MAV_MODE_FLAG_SAFETY_ARMED,
     ROTOR_TRUTH_CHANNELS,
     StateAssembler,
     StateSample,
     receive,
 )
-from heli_common.mavlink.udp import Address, MavlinkUdp
-from heli_common.measurements import (
+from heli_common.wire.mavlink.udp import Address, MavlinkUdp
+from heli_common.wire.measurements import (
     N_OUT,
     NEW_ATT,
     NEW_BARO,
@@ -44,7 +46,7 @@ from heli_common.measurements import (
     OUT_MAG,
     OUT_MAG_T,
 )
-from heli_common.sensor_wire import (
+from heli_common.wire.sensor_wire import (
     BARO_FIELD,
     IMU_FIELDS,
     MAG_FIELDS,
@@ -52,14 +54,13 @@ from heli_common.sensor_wire import (
     gps_status_from_wire,
     home_array,
 )
-from heli_common.state import FloatArray
 
 
 class Measurements:
     """The vehicle's sensors as the sim link brings them (HIL_SENSOR: IMU, magnetometer and
     baro; HIL_GPS: a fix and the receiver's status; AHRS2; the plant's frames and units: body
     FRD, NED, lat/lon about ``home``, eph/epv in cm), gathered into the
-    measurement layout of :mod:`heli_common.measurements` (NWU/FLU, SI). New samples
+    measurement layout of :mod:`heli_common.wire.measurements` (NWU/FLU, SI). New samples
     accumulate in ``mask`` until a state takes them (:meth:`take`)."""
 
     def __init__(self, home: GeoPoint) -> None:

@@ -11,8 +11,8 @@ datagram does not lose a setting and a plant's own world is never overwritten un
 from __future__ import annotations
 
 from autopilot.params_table import ParamTable
-from heli_common.mavlink.udp import MavlinkUdp, mavlink2
 from heli_common.state import FloatArray
+from heli_common.wire.mavlink.udp import MavlinkUdp, mavlink2
 
 PLANT_COMPONENT = 51
 REPEATS = 3

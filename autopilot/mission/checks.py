@@ -18,7 +18,7 @@ import math
 from dataclasses import dataclass
 
 from heli_common.geo import GeoPoint, geo_to_ned_m
-from heli_common.mavlink.mission_items import (
+from heli_common.wire.mavlink.mission_items import (
     ACCEPTED,
     AMSL_FRAMES,
     BREAK_MASK_ALL,

@@ -71,7 +71,7 @@ from pymavlink.dialects.v20 import development as mavlink
 
 from autopilot.mission.checks import DEFAULT_LIMITS, ItemLimits, check_item
 from heli_common.geo import GeoPoint
-from heli_common.mavlink.mission_items import (
+from heli_common.wire.mavlink.mission_items import (
     ACCEPTED,
     CANCELLED,
     DENIED,
@@ -87,7 +87,7 @@ from heli_common.mavlink.mission_items import (
     ItemError,
     MissionItem,
 )
-from heli_common.mavlink.udp import Message, addressed_to
+from heli_common.wire.mavlink.udp import Message, addressed_to
 
 MissionCheck = Callable[[tuple[MissionItem, ...]], int]
 SetCurrentCheck = Callable[[int], bool]

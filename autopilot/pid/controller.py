@@ -32,11 +32,11 @@ from autopilot.reference import POS_0 as REF_POS
 from autopilot.reference import VEL_0 as REF_VEL
 from autopilot.tlc.allocation import allocate
 from autopilot.tlc.inversion import force_to_thrust_attitude, limit_tilt, yaw_rate_command
-from heli_common.airframe import Airframe, PlantConstants
 from heli_common.jit import njit
 from heli_common.kinematics import cross, euler_rate_matrix, mat_t_vec, mat_vec, rot_body_to_earth, wrap_pi
 from heli_common.layout import Layout
 from heli_common.state import EULER, N_PITCH, OMEGA, POS, VEL, FloatArray
+from heli_common.vehicle.airframe import Airframe, PlantConstants
 
 # controller state layout
 PID_STATE = Layout(

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from heli_common import rotor
-from heli_common.airframe import PlantConstants
 from heli_common.jit import njit
 from heli_common.state import N_PITCH, FloatArray
+from heli_common.vehicle import rotor
+from heli_common.vehicle.airframe import PlantConstants
 
 
 @njit

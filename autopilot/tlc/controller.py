@@ -48,7 +48,6 @@ from autopilot.tlc.rotor_aware import (
     observe_flapping,
     rotor_aware_constants,
 )
-from heli_common.airframe import Airframe, PlantConstants
 from heli_common.jit import njit
 from heli_common.kinematics import wrap_pi
 from heli_common.layout import Layout
@@ -69,6 +68,7 @@ from heli_common.state import (
     Z_U,
     FloatArray,
 )
+from heli_common.vehicle.airframe import Airframe, PlantConstants
 
 # reference vector (earth NWU): commanded position and, where known, its derivatives
 

@@ -17,7 +17,7 @@ thrust's arm). Following the paper's method (docs/tlc-rotor.md):
 * the flapping is not measured on a helicopter, so ``a1^, b1^`` come from an observer: the
   design model's flapping driven by the measured rates and the cyclic the servos achieved;
 * the command filter sends only what the modelled servos can follow (their position and
-  rate limits) and runs the servo model (:mod:`heli_common.servo_model`, the plant's own) on
+  rate limits) and runs the servo model (:mod:`heli_common.world.servo_model`, the plant's own) on
   it; the observer sees what was achieved. The integrators of loops 1-4 hold while a
   command is clipped at a position limit (as the paper's TLC), not while it is slowed to the
   rate limit: a rate limit passes in a tick or two, and holding every integral through the
@@ -35,13 +35,13 @@ import numpy as np
 
 from autopilot.tlc.differentiator import DiffCoeffs, diff_reset, diff_step, discretize
 from autopilot.tlc.gains import RotorAwareGains
-from heli_common import servo_model
-from heli_common.airframe import Airframe
 from heli_common.config import ConfigError
 from heli_common.jit import njit
-from heli_common.plant_model import PlantModel
 from heli_common.state import EPS, ETA, N_PITCH, FloatArray
-from heli_common.world import Servos, World
+from heli_common.vehicle.airframe import Airframe
+from heli_common.vehicle.plant_model import PlantModel
+from heli_common.world import servo_model
+from heli_common.world.config import Servos, World
 
 MAX_SERVO_DELAY_TICKS = 4  # the command filter's servo FIFO: delays up to 4 control periods
 SERVO_STATE_SIZE = servo_model.SS_FIFO + MAX_SERVO_DELAY_TICKS * N_PITCH

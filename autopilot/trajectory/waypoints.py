@@ -38,8 +38,8 @@ import numpy.typing as npt
 from autopilot.trajectory.base import Trajectory
 from heli_common.frames import flip
 from heli_common.geo import GeoPoint
-from heli_common.mavlink import mission_items as ms
 from heli_common.state import FloatArray
+from heli_common.wire.mavlink import mission_items as ms
 
 # smootherstep ramp: peak acceleration = RAMP_ACC_FACTOR * V / T_ramp
 RAMP_ACC_FACTOR = 1.875

@@ -24,7 +24,7 @@ import numpy as np
 import scipy.linalg
 
 import heli_sitl as hs
-from heli_common.airframe import Airframe
+from heli_common.vehicle.airframe import Airframe
 from heli_common.kinematics import rot_body_to_earth
 from heli_common.state import EULER, N_STATE, POS, PSI, VEL, FloatArray
 

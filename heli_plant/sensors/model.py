@@ -1,7 +1,7 @@
 """Sensor models in the plant's step (compiled): IMU, GPS, attitude source, barometer,
 magnetometer.
 
-:class:`SensorModel` turns a configured :class:`heli_common.sensors.Sensors` into three flat
+:class:`SensorModel` turns a configured :class:`heli_common.world.sensors.Sensors` into three flat
 float64 arrays (named offsets below) and :func:`sensor_step` is called once per plant step
 with the true state ``x`` at time ``t_s`` and the true acceleration of the c.g. in the earth
 frame at that time. It returns a bit mask of the samples that are new this step and writes
@@ -33,7 +33,7 @@ Per sensor (details and sources in docs/sensors.md):
   ready (only after a lag is shortened live) the newest is delivered, older ones dropped;
   if the FIFO is full the oldest entry is overwritten (sized so that cannot happen).
 * Baro drift: ``d += rate * dt`` per sample (ArduPilot's SITL_Baro drifts the same way).
-* Magnetometer: ``R^T m_nwu`` (the earth's field at home, :mod:`heli_common.magnetic`, carried
+* Magnetometer: ``R^T m_nwu`` (the earth's field at home, :mod:`heli_common.world.magnetic`, carried
   in the parameters) + a constant hard-iron offset + white noise, no latency.
 * GPS receiver status, written with each fix delivered: fix type 3 (3D), the configured
   satellite count, and the receiver's own 1-sigma accuracies ``eph`` (per horizontal axis)
@@ -113,8 +113,8 @@ from heli_common.geo import GeoPoint
 from heli_common.jit import njit
 from heli_common.kinematics import rot_euler_entries
 from heli_common.layout import Layout
-from heli_common.magnetic import earth_field_nwu_gauss
-from heli_common.measurements import (  # the out layout and mask bits are the contract's
+from heli_common.state import N_STATE, P_X, PHI, PSI, THETA, U_F, V_L, W_U, X_N, Z_U, FloatArray
+from heli_common.wire.measurements import (  # the out layout and mask bits are the contract's
     GPS_FIX_3D,
     N_OUT,
     NEW_ATT,
@@ -144,8 +144,8 @@ from heli_common.measurements import (  # the out layout and mask bits are the c
     ImuSample,
     MagSample,
 )
-from heli_common.sensors import SENSOR_TABLES, Sensors, validate
-from heli_common.state import N_STATE, P_X, PHI, PSI, THETA, U_F, V_L, W_U, X_N, Z_U, FloatArray
+from heli_common.world.magnetic import earth_field_nwu_gauss
+from heli_common.world.sensors import SENSOR_TABLES, Sensors, validate
 from heli_plant.world.noise import STREAM_SENSOR_BASE, normal, normal_pair
 
 # --- stream ids (one per random process; the world owns those below 16) -----------------
@@ -349,7 +349,7 @@ def specific_force_flu(
 @njit
 def magnetic_field_flu(x: FloatArray, field_nwu_gauss: FloatArray, at: int = 0) -> tuple[float, float, float]:
     """What a perfect magnetometer reads, body FLU: ``R^T m_nwu`` [gauss], ``m_nwu`` the
-    earth's field (:func:`heli_common.magnetic.earth_field_nwu_gauss` at home) at
+    earth's field (:func:`heli_common.world.magnetic.earth_field_nwu_gauss` at home) at
     ``field_nwu_gauss[at:]``."""
     rt = _rot(x)
     m0, m1, m2 = field_nwu_gauss[at], field_nwu_gauss[at + 1], field_nwu_gauss[at + 2]
@@ -744,7 +744,7 @@ def sensor_parameters(
     SNP_* offsets). A sensor that is off gets rate 0 (every step) and no error terms; its
     failure settings still apply. ``min_slots``: the least GPS and attitude FIFO sizes (a
     live update never shrinks them, so the entries in flight fit). ``home``: where the
-    magnetometer's earth field is taken (:mod:`heli_common.magnetic`; the vehicle flies
+    magnetometer's earth field is taken (:mod:`heli_common.world.magnetic`; the vehicle flies
     within kilometres of it). ValueError: a field out of range, a non-positive step or
     gravity, or a sensor rate above the plant rate."""
     validate(config)
@@ -878,7 +878,7 @@ class SensorSamples(NamedTuple):
 
 
 def samples_from_out(out: FloatArray, mask: int) -> SensorSamples:
-    """The NamedTuples of :mod:`heli_common.measurements` for the samples flagged in ``mask``."""
+    """The NamedTuples of :mod:`heli_common.wire.measurements` for the samples flagged in ``mask``."""
 
     def v3(i: int) -> tuple[float, float, float]:
         return (float(out[i]), float(out[i + 1]), float(out[i + 2]))

@@ -3,7 +3,7 @@
 :func:`sense` takes the plant's true state after a step, the acceleration the model gives
 there (the dynamics derivative with the pitches and air of the step just flown), samples
 every sensor (:func:`~heli_plant.sensors.model.sensor_step`) and rounds the new
-samples to what the sim link carries (:mod:`heli_common.sensor_wire`). The plant process
+samples to what the sim link carries (:mod:`heli_common.wire.sensor_wire`). The plant process
 and the in-process loop call this same compiled function, so both give the autopilot's
 estimator the same numbers.
 """
@@ -16,11 +16,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from heli_common import frames
-from heli_common.airframe import PlantConstants
 from heli_common.geo import GeoPoint
 from heli_common.jit import njit
-from heli_common.mavlink.fast import SimCodec
-from heli_common.measurements import (
+from heli_common.state import N_PITCH, Z_U, FloatArray
+from heli_common.vehicle.airframe import PlantConstants
+from heli_common.wire.mavlink.fast import SimCodec
+from heli_common.wire.measurements import (
     NEW_ATT,
     NEW_BARO,
     NEW_GPS,
@@ -39,7 +40,7 @@ from heli_common.measurements import (
     OUT_GYRO,
     OUT_MAG,
 )
-from heli_common.sensor_wire import (
+from heli_common.wire.sensor_wire import (
     BARO_FIELD,
     IMU_FIELDS,
     MAG_FIELDS,
@@ -48,9 +49,8 @@ from heli_common.sensor_wire import (
     home_array,
     to_wire_resolution,
 )
-from heli_common.sensors import Sensors
-from heli_common.state import N_PITCH, Z_U, FloatArray
-from heli_common.world import World
+from heli_common.world.config import World
+from heli_common.world.sensors import Sensors
 from heli_plant import rotor
 from heli_plant.contact import GROUND_Z_M
 from heli_plant.dynamics import derivative
@@ -106,7 +106,7 @@ class Sensing:
 
     model: SensorModel
     home: FloatArray
-    meas: FloatArray  # the measurement layout (heli_common.measurements), latest samples
+    meas: FloatArray  # the measurement layout (heli_common.wire.measurements), latest samples
     mask: int = 0  # new at the last call
 
     @classmethod

@@ -4,8 +4,8 @@ simulation that knows them; no autopilot reads this."""
 from __future__ import annotations
 
 from heli_common.jit import njit
-from heli_common.sensors import Vec3
 from heli_common.state import FloatArray
+from heli_common.world.sensors import Vec3
 from heli_plant.sensors.model import (
     SNP_ACCEL_BIAS,
     SNP_ACCEL_STEP,

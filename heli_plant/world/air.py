@@ -26,7 +26,7 @@ Rotor inflow (:func:`rotor_inflow`)
     the thrust axis for positive thrust). Thrust ``T = C_T rho A (Omega R)^2`` and torque
     ``Q = C_Q rho A (Omega R)^2 R`` with ``C_Q = 1.13 C_T lam + C_T mu_z + s delta/8``.
 
-Hover consistency (mu = mu_z = 0, eta_w = 1) with :mod:`heli_common.rotor`
+Hover consistency (mu = mu_z = 0, eta_w = 1) with :mod:`heli_common.vehicle.rotor`
     The momentum relation becomes ``lam |lam| = C_T/2``; with ``tc = C_T/s`` the pair reads
     ``tc = a theta/6 - a lam/4``, ``lam = sqrt(s tc/2)``, the implicit form the hover map is
     derived from. Writing ``x = sqrt(tc)`` gives ``x^2 + (a/4) sqrt(s/2) x - a theta/6 = 0``
@@ -64,8 +64,8 @@ from __future__ import annotations
 
 import math
 
-from heli_common.airframe import PlantConstants
 from heli_common.jit import njit
+from heli_common.vehicle.airframe import PlantConstants
 
 _MAX_ITER = 100  # bisection alone reaches 1e-13 of the bracket in ~45 halvings
 _REL_TOL = 1e-13  # a Newton step this small leaves an error ~ its square
@@ -204,7 +204,7 @@ def rotor_inflow(
 def rotor_torque_coeff(c_t: float, lam: float, mu_z: float, solidity: float, delta: float) -> float:
     """C_Q = Q/(rho A (Omega R)^2 R) = 1.13 C_T lam + C_T mu_z + s delta/8: induced (with the
     empirical 1.13 of the hover map), climb and profile torque. Even under thrust reversal;
-    in hover it equals ``heli_common.rotor.torque_coeff(C_T/s) * s``."""
+    in hover it equals ``heli_common.vehicle.rotor.torque_coeff(C_T/s) * s``."""
     return 1.13 * c_t * lam + c_t * mu_z + solidity * delta / 8.0
 
 

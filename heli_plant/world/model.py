@@ -1,6 +1,6 @@
 """The world in the plant's step: servos, wind, air loads and disturbances, compiled.
 
-:class:`WorldModel` turns a configured :class:`heli_common.world.World` into flat arrays
+:class:`WorldModel` turns a configured :class:`heli_common.world.config.World` into flat arrays
 (named offsets below) and :func:`world_plant_step` advances the vehicle through one hold
 interval with them, sub-step by sub-step (step ``h = dt / n_sub``):
 
@@ -26,15 +26,15 @@ from typing import NamedTuple
 
 import numpy as np
 
-from heli_common import servo_model as servos
-from heli_common.airframe import Airframe, PlantConstants
-from heli_common.gusts import gust_factor, mean_wind_nwu
 from heli_common.jit import njit
 from heli_common.kinematics import earth_to_body_at, rot_body_to_earth
 from heli_common.layout import Layout
-from heli_common.plant_model import RotorPlant
 from heli_common.state import N_PITCH, N_STATE, P_X, PHI, PSI, Q_Y, R_Z, THETA, U_F, V_L, W_U, FloatArray
-from heli_common.world import World
+from heli_common.vehicle.airframe import Airframe, PlantConstants
+from heli_common.vehicle.plant_model import RotorPlant
+from heli_common.world import servo_model as servos
+from heli_common.world.config import World
+from heli_common.world.gusts import gust_factor, mean_wind_nwu
 from heli_plant import rotor
 from heli_plant.contact import apply_ground_contact
 from heli_plant.dynamics import forces_from_loads_into, gravity_into, rigid_body_into, rotor_loads

@@ -2,9 +2,9 @@
 
 Three independent pieces, each a small pure function the plant composes:
 
-* :func:`heli_common.gusts.mean_wind_nwu` maps ArduPilot's ``SIM_WIND_SPD`` / ``_DIR`` / ``_DIR_Z``
+* :func:`heli_common.world.gusts.mean_wind_nwu` maps ArduPilot's ``SIM_WIND_SPD`` / ``_DIR`` / ``_DIR_Z``
   to a steady air velocity.
-* :func:`heli_common.gusts.gust_factor` is the shape of a discrete gust, 0..1: the 1-cosine rise
+* :func:`heli_common.world.gusts.gust_factor` is the shape of a discrete gust, 0..1: the 1-cosine rise
   of MIL-F-8785C (also the MathWorks Discrete Wind Gust Model), optionally held and then ramped down with a
   cosine as in JSBSim's ``FGWinds::CosineGustProfile``. The caller scales a fixed earth
   direction by ``V_m * gust_factor``.
