@@ -22,7 +22,7 @@ from ground import files
 from ground.cli import build_parser
 from ground.plots import read_csv_columns
 from heli_common.config import CONFIG_DIR, ConfigError
-from heli_common.state import X_N, Z_U
+from heli_common.state import EPS, ETA, P_X, Q_Y, R_Z, THETA_M, THETA_T, U_F, V_L, W_U, X_N, Z_U
 from heli_sitl.launch.demo import _written
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -153,3 +153,31 @@ def test_a_failing_user_controller_on_the_command_line_shows_its_own_file_and_li
     assert 'user_controllers.py", line' in err, err
     assert err.endswith("RuntimeError: a bug in the user's law\n"), err
     assert "closed_loop.py" not in err and "heli_sitl/cli.py" not in err  # the bench's frames left out
+
+
+def test_the_pitch_sign_table_in_the_docs_is_the_plants() -> None:
+    """docs/controllers.md says which pitch moves which axis, with which sign, at hover: the
+    linearised paper plant's B matrix says so too (per rad, the docs' rounding)."""
+    text = (ROOT / "docs" / "controllers.md").read_text()
+    b = hs.linearize("paper").b
+    stated = {  # (state, input): the figure the docs give
+        (W_U, THETA_M): "w +137 m/s^2", (R_Z, THETA_M): "r -169 rad/s^2", (R_Z, THETA_T): "r +148",
+        (Q_Y, EPS): "q +56 rad/s^2", (U_F, EPS): "u +9.8 m/s^2", (P_X, ETA): "p +105", (V_L, ETA): "v -9.8",
+    }  # fmt: skip
+    for (i, j), words in stated.items():
+        assert words in text, words
+        figure = float(words.split()[1])
+        assert b[i, j] == pytest.approx(figure, abs=0.51 if abs(figure) > 20 else 0.051), (words, b[i, j])
+
+
+def test_the_lqr_examples_commands_run_as_its_docstring_writes_them() -> None:
+    """Every command line the example's docstring gives parses as written (the in-process
+    one flies in test_user_controller; the process and campaign ones fly elsewhere)."""
+    from heli_sitl.cli import build_parser as sitl_parser
+
+    doc = (ROOT / "docs" / "examples" / "lqr_hover.py").read_text().split('"""')[1]
+    commands = [c for c in doc.split("``") if c.startswith("heli-sitl ")]
+    assert len(commands) == 2, commands
+    for c in commands:
+        args = sitl_parser().parse_args(c.split()[1:])
+        assert args.controller.endswith("lqr_hover.py:LqrHover"), c

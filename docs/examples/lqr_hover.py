@@ -11,7 +11,7 @@ pitches``, ``reset()``. The same class flies
                      ``hs.simulate(controller="docs/examples/lqr_hover.py:LqrHover")``;
 * as processes:      ``heli-sitl demo --mode lockstep --autostart --controller docs/examples/lqr_hover.py:LqrHover --out out/lqr``
                      (the autopilot process loads the class);
-* in a campaign:     ``heli-sitl campaign robustness --controller docs/examples/lqr_hover.py:LqrHover``.
+* in a campaign:     ``heli-sitl campaign robustness --controller docs/examples/lqr_hover.py:LqrHover --out out/lqr-campaign``.
 
 A linear law about hover has no feedforward of the trajectory's acceleration and no model
 of the attitude the thrust needs: it tracks the paper's slow circle (0.8 m/s) to a few
