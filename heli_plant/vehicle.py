@@ -4,7 +4,7 @@ a subclass, registered by name.
 A vehicle model is its parameters (the airframe it is built on, and whatever it adds), its
 derivative ``f(t, x, u)`` of the 12 rigid-body states (heli_common.state's order: earth NWU
 position, body FLU velocity, ZYX Euler angles, body FLU rates) with the blade pitches ``u``
-held, its trim's first guess and a sensing hook. The base class gives it the rest: the
+held, and its trim's first guess. The base class gives it the rest: the
 integrator (RK4, the same stages and sums as the compiled plant's), the ground and the
 input guards (:class:`heli_plant.model.Plant`), the sim link and the plant process, trim
 and linearisation (:mod:`heli_plant.trim`). Pure: no I/O, no clock.
@@ -14,7 +14,9 @@ world step (the world's air, servos and sensors around them); :class:`PaperPlant
 paper's model through this contract (the reference a model of yours is checked against).
 A model of yours flies by ``module:Class`` or ``file.py:Class``, or by the name its package
 registers in the entry point group ``heli_tlc_sitl.plants``; it flies the ideal world (a
-world's effects or sensors around it are refused, by name, not ignored).
+world's effects or sensors around it are refused, by name, not ignored: the bench's sensor
+models compute the specific force from the paper's own loads, so they would measure the
+wrong vehicle).
 """
 
 from __future__ import annotations
@@ -50,11 +52,6 @@ class VehicleModel(ABC):
     def trim_guess(self) -> FloatArray:
         """Where trim starts: (phi, theta, theta_m, theta_t, eps, eta) [rad]."""
         return np.array([0.0, 0.0, 0.1, 0.15, 0.0, 0.0])
-
-    def sense(self, t_s: float, x: FloatArray, u: FloatArray) -> FloatArray | None:
-        """What the vehicle's own sensors measure (None: none; the autopilot flies on the
-        state, as with the paper's ideal sensing)."""
-        return None
 
     def step(self, t_s: float, x: FloatArray, u: FloatArray, dt_s: float, substeps: int = 1) -> FloatArray:
         """The state after ``dt_s`` with ``u`` held: RK4 in ``substeps`` steps, each sum in
