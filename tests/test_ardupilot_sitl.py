@@ -119,3 +119,13 @@ def test_ardupilot_flies_the_paper_plant_and_the_rotor_plant(tmp_path: Path) -> 
                      Scenario.load("paper"))  # fmt: skip
         print(f"{plant}: scorecard {card}")
         assert card.lost == 0.0 and card.steady_rms_m < 0.37  # twice the worst measured ([10, 120]: 0.183 m)
+
+
+def test_the_shared_firmware_is_looked_for_beside_the_repository() -> None:
+    """The tests above skip where the firmware is not: the place it is looked for must be the
+    one the workplace keeps it in (../shared/ardupilot), or they would skip everywhere (a
+    move of the launcher once pointed one level too shallow, and two tests skipped unseen)."""
+    from heli_sitl.launch.ardupilot import SHARED_BIN
+
+    root = Path(__file__).resolve().parent.parent
+    assert root.parent / "shared" / "ardupilot" / "arducopter-heli" == SHARED_BIN

@@ -26,7 +26,8 @@ from heli_sitl.launch.children import Child, spawn, stop_all
 
 ENV_BIN = "ARDUPILOT_HELI_BIN"  # where the firmware is, if not given on the command line
 # this workplace keeps a build beside the repository (../shared/ardupilot, its README)
-SHARED_BIN = Path(__file__).resolve().parents[2] / "shared" / "ardupilot" / "arducopter-heli"
+# the repository's parent: heli_sitl/launch/ardupilot.py -> launch, heli_sitl, the repository, its parent
+SHARED_BIN = Path(__file__).resolve().parents[3] / "shared" / "ardupilot" / "arducopter-heli"
 ARDUPILOT_CONFIGS = CONFIG_DIR / "ardupilot"
 
 
