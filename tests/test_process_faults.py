@@ -52,8 +52,12 @@ def _texts(gcs: MavlinkUdp, seconds: float) -> list[str]:
 
 
 def _start(pp: int, ap: int, gcs_port: int, out: Path, duration_s: float) -> tuple[Child, Child]:
-    common = ["--mode", "realtime", "--rate-hz", "100", "--duration-s", str(duration_s)]
-    plant = spawn([sys.executable, "-m", "heli_sitl.cli", "run", *common[:4], "--port", str(pp),
+    # both loops under SCHED_FIFO where permitted (root, CAP_SYS_NICE), as a user on a loaded
+    # machine runs them: beside the suite's CPU-bound files a default-policy loop skipped a
+    # quarter of its ticks and tumbled after the stall (18 m off, 5 busy processes on 2 cores)
+    rt = ["--rt-priority", "10"]
+    common = ["--mode", "realtime", "--rate-hz", "100", "--duration-s", str(duration_s), *rt]
+    plant = spawn([sys.executable, "-m", "heli_sitl.cli", "run", *common[:4], *rt, "--port", str(pp),
                    "--autopilot-port", str(ap), "--rate-hz", "200"], "plant")  # fmt: skip
     autopilot = spawn([sys.executable, "-m", "autopilot.cli", *common, "--port", str(ap),
                        "--plant-port", str(pp), "--autostart", "--out", str(out),
@@ -77,6 +81,25 @@ def _pos_err(cols: dict[str, np.ndarray]) -> np.ndarray:
     return np.sqrt(sum((cols[k] - cols[ref_column(k)]) ** 2 for k in ("x_m", "y_m", "z_m")))
 
 
+def _wait_vehicle_time(gcs: MavlinkUdp, t_s: float, timeout_s: float) -> None:
+    """Until the vehicle's own clock (its telemetry's time_boot_ms, run.csv's t_s) reads
+    ``t_s``: a fault injected at a flight time, not at a wall time that a loaded machine's
+    slower start moves along the path."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        for m, _ in gcs.recv(0.2):
+            if m.get_type() == "LOCAL_POSITION_NED" and m.time_boot_ms >= t_s * 1e3:
+                return
+    raise AssertionError(f"the vehicle's clock did not reach {t_s} s within {timeout_s} s")
+
+
+def _resume_s(t_s: np.ndarray) -> float:
+    """Where the record resumes after its longest gap (the stall: its ticks were skipped)."""
+    i = int(np.argmax(np.diff(t_s)))
+    assert t_s[i + 1] - t_s[i] > 1.5, f"no stall in the record (longest gap {t_s[i + 1] - t_s[i]:.3f} s)"
+    return float(t_s[i + 1])
+
+
 def test_hostile_datagrams_and_a_stall_do_not_lose_the_flight(tmp_path: Path) -> None:
     pp, ap = new_port(), new_port()
     gcs = MavlinkUdp((LOOPBACK, 0), drop_nonfinite=False)
@@ -85,7 +108,7 @@ def test_hostile_datagrams_and_a_stall_do_not_lose_the_flight(tmp_path: Path) ->
     rogue_plant = mavlink2.MAVLink(None, srcSystem=1, srcComponent=51)
     try:
         _wait_for(gcs, "LOCAL_POSITION_NED", 120.0)  # flying (after a cold compile, too)
-        time.sleep(15.0)
+        _wait_vehicle_time(gcs, 15.0, 60.0)
         with MavlinkUdp((LOOPBACK, 0), (LOOPBACK, pp)) as to_plant:
             # a valid command stamped 2**63 - 1 us, to the plant
             to_plant.send_bytes(bytes(command_message(2**63 - 1, np.zeros(4), LIMITS, True).pack(rogue)))
@@ -95,7 +118,7 @@ def test_hostile_datagrams_and_a_stall_do_not_lose_the_flight(tmp_path: Path) ->
             # a valid state far in the future, and one 1e30 m away, to the autopilot
             for t_us, x in ((4_000_000_000_000, np.zeros(12)), (20_000_000, huge)):
                 to_autopilot.send_bytes(b"".join(bytes(m.pack(rogue_plant)) for m in state_messages(t_us, x)))
-        time.sleep(5.0)
+        _wait_vehicle_time(gcs, 20.0, 60.0)
         autopilot.send_signal(signal.SIGSTOP)  # the autopilot stalls for 2 s
         time.sleep(2.0)
         autopilot.send_signal(signal.SIGCONT)
@@ -115,11 +138,16 @@ def test_hostile_datagrams_and_a_stall_do_not_lose_the_flight(tmp_path: Path) ->
     assert np.all(np.abs(cols["x_m"]) < 100.0)  # nothing of the 1e30 m state reached the record
     err = _pos_err(cols)
     t = cols["t_s"]
-    after = t > 27.0  # from 2 s after the stall to the end
-    print(f"max error after the stall {err[after].max():.3f} m, "
-          f"max |theta| {np.abs(cols['theta_rad'][after]).max():.3f} rad")
-    assert err[after].max() < 1.0
-    assert np.abs(cols["theta_rad"][after]).max() < 0.3
+    resume_s = _resume_s(t)
+    # 2 s of the last command held open loop put the vehicle 1.7-2.0 m off (measured, alone
+    # and beside 5 busy processes under SCHED_FIFO); 4 s after the resume it is back within
+    # 0.45 m of the path, and within 0.2 m by the end
+    after = t > resume_s + 4.0
+    theta = np.abs(cols["theta_rad"][t > resume_s])
+    print(f"resumed at {resume_s:.2f} s; max error from 4 s after {err[after].max():.3f} m, "
+          f"max |theta| after {theta.max():.3f} rad, last 5 s {err[t > 40.0].max():.3f} m")
+    assert err[after].max() < 0.6
+    assert theta.max() < 0.3
     assert err[t > 40.0].max() < 0.3  # recovered
 
 

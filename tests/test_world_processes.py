@@ -107,6 +107,7 @@ def test_a_live_sim_wind_change_reaches_the_plant_and_the_log(tmp_path: Path) ->
     def fly() -> None:
         result["summary"] = run_demo(DemoOptions(
             mode="realtime", scenario=str(scenario), out=tmp_path / "out", via_ground=False, world="breezy",
+            rt_priority=10,  # SCHED_FIFO where permitted: the suite loads the cores
             extra_autopilot_args=("--gcs-port", str(gcs_port), "--api-port", str(new_port())),
         ))  # fmt: skip
 
@@ -204,7 +205,7 @@ def test_gps_loss_over_the_ground_station_holds_then_lands(tmp_path: Path) -> No
 
     def fly() -> None:
         run_demo(DemoOptions(
-            mode="realtime", scenario=str(scenario), out=tmp_path / "out", via_ground=False,
+            mode="realtime", scenario=str(scenario), out=tmp_path / "out", via_ground=False, rt_priority=10,
             world="gps-typical",
             extra_autopilot_args=("--gcs-port", str(gcs_port), "--api-port", str(new_port())),
         ))  # fmt: skip
