@@ -44,8 +44,10 @@ from autopilot.tlc.rotor_aware import (
     SERVO_STATE_SIZE,
     RotorAwareConstants,
     command_filter,
+    correct_flapping,
     flapping_inversion,
     observe_flapping,
+    predict_rates_and_flapping,
     rotor_aware_constants,
 )
 from heli_common.jit import njit
@@ -88,6 +90,7 @@ STATE = Layout(
     ("flap_hat", 2),  # rotor-aware: the flapping observer's a1^, b1^
     ("d_flap", 6),  # rotor-aware: pseudo-differentiator of (a1_c, b1_c, 0)
     ("servo", SERVO_STATE_SIZE),  # rotor-aware: the command filter's servo model
+    ("rate_hat", 2),  # rotor-aware, rate-corrected observer: its estimate of p, q
 )  # fmt: skip
 S_I1, S_I2, S_I3, S_I4 = (STATE.offset(n) for n in ("i1", "i2", "i3", "i4"))
 S_D_POS, S_D_A, S_D_GAMMA, S_D_OMEGA = (STATE.offset(n) for n in ("d_pos", "d_a", "d_gamma", "d_omega"))
@@ -98,6 +101,7 @@ S_SENT = STATE.offset("sent")
 S_FLAP_HAT = STATE.offset("flap_hat")
 S_D_FLAP = STATE.offset("d_flap")
 S_SERVO = STATE.offset("servo")
+S_RATE_HAT = STATE.offset("rate_hat")
 N_CTRL_STATE = STATE.size
 
 
@@ -158,6 +162,8 @@ def flapping_loop(
     mask of the channels clipped at a position limit)."""
     r = k.rotor
     tilt, tm, mask = collective_tail_tilt(qc, tm, k.plant, k.limits, r.k_hub_n_m)
+    if r.correct:  # the flapping estimate corrected from the gyro before loop 5 reads it
+        correct_flapping(r, s, S_FLAP_HAT, S_RATE_HAT, om[0], om[1], first)
     # nominal rates (loop 3's command) in the inversion: the rotor's own rate damping then
     # acts on the rate error, as the paper's nominal-plus-regulator split intends
     eps, eta = flapping_inversion(r, s, S_D_FLAP, S_FLAP_HAT, tilt[2:4], wc[0], wc[1], first)
@@ -165,7 +171,10 @@ def flapping_loop(
     desired[2], desired[3] = eps, eta
     achieved = np.empty(N_PITCH)
     u, clipped, _slowed = command_filter(r, s, S_SENT, S_SERVO, desired, k.limits, first, achieved)
-    observe_flapping(r, s, S_FLAP_HAT, achieved, om[0], om[1])
+    if r.correct:
+        predict_rates_and_flapping(r, k.plant, k.j, k.j_inv, s, S_FLAP_HAT, S_RATE_HAT, achieved, om[2])
+    else:
+        observe_flapping(r, s, S_FLAP_HAT, achieved, om[0], om[1])
     return u, tm, mask | clipped
 
 

@@ -34,6 +34,27 @@ class CommandLimits:
 
 
 @dataclass(frozen=True)
+class RotorObserverGains:
+    """How loop 5's flapping estimate is corrected (docs/tlc-rotor.md, "The observer").
+
+    ``open_loop``: the design model's flapping driven by the measured rates and the achieved
+    cyclic, with no output injection. ``rate``: a Kalman-Luenberger observer on the design
+    model's ``[p, q, a1, b1]`` that predicts the body rates one tick ahead (the hub moment of
+    the estimated flapping) and corrects the estimate from the gyro's prediction error, with
+    the steady-state Kalman gain of the noise figures below."""
+
+    correction: str = spec(choices=("open_loop", "rate"), default="open_loop")
+    # the measured rates' noise, one standard deviation per control tick
+    gyro_noise_rad_s: float = spec("rad/s", 0.0, 10.0, lo_open=True, default=0.001)
+    # the design model's moment error (turbulence, the stabilizer, blowback), as a white
+    # angular acceleration's intensity
+    moment_noise_rad_s2_rthz: float = spec("rad/s^2/sqrt(Hz)", 0.0, 1e3, lo_open=True, default=10.0)
+    # the design model's flapping error (linkage gains, the bar's time constant), as a white
+    # flapping rate's intensity
+    flapping_noise_rad_s_rthz: float = spec("rad/s/sqrt(Hz)", 0.0, 1e3, lo_open=True, default=1.0)
+
+
+@dataclass(frozen=True)
 class RotorAwareGains:
     """Loop 5 of the rotor-aware TLC (docs/tlc-rotor.md): the main rotor's flapping as one
     more subsystem of the cascade, and a command filter that models the servos."""
@@ -48,6 +69,8 @@ class RotorAwareGains:
     # the world preset whose servos the command filter models ("ideal": none); the filter
     # sends only what those servos can follow and feeds the flapping observer what they achieve
     servos: str = spec(default="ideal")
+    # the flapping estimate's correction; default: the open-loop model (no correction)
+    observer: RotorObserverGains = spec(default=RotorObserverGains())
 
 
 @dataclass(frozen=True)

@@ -15,7 +15,11 @@ thrust's arm). Following the paper's method (docs/tlc-rotor.md):
 * loop 5 inverts the flapping: the nominal cyclic ``(a1_c + tau_e (a1_c' + q)) / A_lon`` with
   ``a1_c'`` from a pseudo-differentiator, plus the error regulator ``tau_e k5 (a1_c - a1^)``;
 * the flapping is not measured on a helicopter, so ``a1^, b1^`` come from an observer: the
-  design model's flapping driven by the measured rates and the cyclic the servos achieved;
+  design model's flapping driven by the measured rates and the cyclic the servos achieved
+  (``[rotor.observer] correction = "open_loop"``, the default), or that model corrected from
+  the gyro (``"rate"``): the body rates are predicted one tick ahead from the hub moment of the
+  estimated flapping, and the prediction error corrects ``a1^, b1^`` through a steady-state
+  Kalman gain (:func:`observer_gain`);
 * the command filter sends only what the modelled servos can follow (their position and
   rate limits) and runs the servo model (:mod:`heli_common.world.servo_model`, the plant's own) on
   it; the observer sees what was achieved. The integrators of loops 1-4 hold while a
@@ -32,13 +36,16 @@ import math
 from typing import NamedTuple
 
 import numpy as np
+from scipy.linalg import expm, solve_discrete_are
 
+from autopilot.tlc.allocation import main_rotor_torque
 from autopilot.tlc.differentiator import DiffCoeffs, diff_reset, diff_step, discretize
-from autopilot.tlc.gains import RotorAwareGains
+from autopilot.tlc.gains import RotorAwareGains, RotorObserverGains
 from heli_common.config import ConfigError
 from heli_common.jit import njit
-from heli_common.state import EPS, ETA, N_PITCH, FloatArray
-from heli_common.vehicle.airframe import Airframe
+from heli_common.state import EPS, ETA, N_PITCH, THETA_M, THETA_T, FloatArray
+from heli_common.vehicle import rotor
+from heli_common.vehicle.airframe import Airframe, PlantConstants
 from heli_common.vehicle.plant_model import PlantModel
 from heli_common.world import servo_model
 from heli_common.world.config import Servos, World
@@ -58,13 +65,75 @@ class RotorAwareConstants(NamedTuple):
     diff: DiffCoeffs
     servo_p: FloatArray  # (4, N_SERVO_PARAM) at the control period; the filter's servo model
     n_servo_state: int  # the servo model's state size (FIFO for its delay)
+    dt_s: float  # the control period
+    correct: bool  # the observer corrects from the gyro ([rotor.observer] correction = "rate")
+    obs_gain: FloatArray  # (4, 2): the Kalman gain of OBS_STATES on the innovation in (p, q)
+
+
+# the rate-corrected observer's state and measurement, in this order (obs_gain's rows, columns)
+OBS_STATES = ("p", "q", "a1", "b1")
+OBS_MEASURED = ("p", "q")
+OG_P, OG_Q, OG_A1, OG_B1 = (OBS_STATES.index(n) for n in OBS_STATES)
 
 
 def _off(dt_s: float) -> RotorAwareConstants:
     p = servo_model.servo_parameters((0.0,) * 4, (math.inf,) * 4, (0.0,) * 4, (-1.0,) * 4, (1.0,) * 4,
                                      (0.0,) * 4, (0.0,) * 4, dt_s)  # fmt: skip
     return RotorAwareConstants(False, 1.0, 0.0, 0.0, 1.0, 1.0, 0.0, discretize(1.0, 1.0, dt_s), p,
-                               servo_model.SS_FIFO)  # fmt: skip
+                               servo_model.SS_FIFO, dt_s, False, np.zeros((4, 2)))  # fmt: skip
+
+
+def observer_model(c: PlantConstants, tau_e_s: float, k_hub: float) -> FloatArray:
+    """The design model of the rate-corrected observer, linearised about hover (thrust m g, no
+    rates): ``x' = A x`` on ``x = (p, q, a1, b1)``. The body rates answer the hub moment of the
+    flapping, ``J omega' = dQ/da1 a1 + dQ/db1 b1`` with loop 4's torque model
+    (``dQ/da1 = (Q_m, T_m h_m + K_beta, 0)``, ``dQ/db1 = (T_m h_m + K_beta, -Q_m, -T_m l_m)``), and
+    the flapping lags the rates, ``a1' = -q - a1/tau_e`` (``b1`` with ``p``)."""
+    j = np.array([[c.ixx, 0.0, -c.ixz], [0.0, c.iyy, 0.0], [-c.ixz, 0.0, c.izz]])
+    j_inv = np.linalg.inv(j)
+    tm = c.mass_kg * c.gravity_m_s2
+    qm = main_rotor_torque(tm, c)
+    lever = tm * c.hm + k_hub
+    da1 = j_inv @ np.array([qm, lever, 0.0])
+    db1 = j_inv @ np.array([lever, -qm, -tm * c.lm])
+    a = np.zeros((4, 4))
+    a[OG_P, OG_A1], a[OG_P, OG_B1] = da1[0], db1[0]
+    a[OG_Q, OG_A1], a[OG_Q, OG_B1] = da1[1], db1[1]
+    a[OG_A1, OG_Q], a[OG_A1, OG_A1] = -1.0, -1.0 / tau_e_s
+    a[OG_B1, OG_P], a[OG_B1, OG_B1] = -1.0, -1.0 / tau_e_s
+    return a
+
+
+def observer_gain(a: FloatArray, o: RotorObserverGains, dt_s: float) -> FloatArray:
+    """The steady-state Kalman gain (4, 2) of the model ``a`` discretised at ``dt_s`` (zero-order
+    hold; the process noise by Van Loan's method): white angular accelerations of intensity
+    ``moment_noise`` on p and q, white flapping rates of intensity ``flapping_noise`` on a1 and
+    b1, the gyro's noise ``gyro_noise`` per tick on the measured p and q. The filter's form is
+    ``x+ = x- + K (y - C x-)`` (the gain on the a-priori estimate)."""
+    n = a.shape[0]
+    qc = np.diag([o.moment_noise_rad_s2_rthz**2] * 2 + [o.flapping_noise_rad_s_rthz**2] * 2)
+    vl = np.zeros((2 * n, 2 * n))
+    vl[:n, :n], vl[:n, n:], vl[n:, n:] = -a * dt_s, qc * dt_s, a.T * dt_s
+    e = expm(vl)
+    f = e[n:, n:].T
+    qd = f @ e[:n, n:]
+    qd = 0.5 * (qd + qd.T)
+    cm = np.zeros((2, n))
+    cm[0, OG_P], cm[1, OG_Q] = 1.0, 1.0
+    r = np.eye(2) * o.gyro_noise_rad_s**2
+    p = solve_discrete_are(f.T, cm.T, qd, r)
+    k: FloatArray = p @ cm.T @ np.linalg.inv(cm @ p @ cm.T + r)
+    return k
+
+
+def observer_poles(a: FloatArray, k: FloatArray, dt_s: float) -> FloatArray:
+    """The estimate error's discrete poles ``eig((I - K C) F)``, as continuous rates ``ln(z)/dt``."""
+    f = expm(a * dt_s)
+    cm = np.zeros((2, a.shape[0]))
+    cm[0, OG_P], cm[1, OG_Q] = 1.0, 1.0
+    z = np.linalg.eigvals((np.eye(a.shape[0]) - k @ cm) @ f)
+    out: FloatArray = np.log(z.astype(complex)) / dt_s
+    return out
 
 
 def design_servos(name: str) -> Servos:
@@ -95,11 +164,16 @@ def rotor_aware_constants(g: RotorAwareGains | None, airframe: Airframe, dt_s: f
         raise ValueError(f"rotor.servos {g.servos!r}: a delay of {slots} control periods; the command "
                          f"filter models at most {MAX_SERVO_DELAY_TICKS}")  # fmt: skip
     fl = rp.flapping
+    correct = g.observer.correction == "rate"
+    gain = np.zeros((4, 2))
+    if correct:
+        obs_model = observer_model(airframe.constants(), tau, fl.hub_stiffness_n_m_per_rad)
+        gain = observer_gain(obs_model, g.observer, dt_s)
     return RotorAwareConstants(
         on=True, tau_e_s=tau, phi=math.exp(-dt_s / tau), k_hub_n_m=fl.hub_stiffness_n_m_per_rad,
         a_lon=fl.lon_gain_rad_per_rad, b_lat=fl.lat_gain_rad_per_rad, k5=g.flapping_rate_rad_s,
         diff=discretize(g.differentiator.omega_rad_s, g.differentiator.zeta, dt_s), servo_p=p,
-        n_servo_state=servo_model.SS_FIFO + slots * N_PITCH,
+        n_servo_state=servo_model.SS_FIFO + slots * N_PITCH, dt_s=dt_s, correct=correct, obs_gain=gain,
     )  # fmt: skip
 
 
@@ -168,3 +242,59 @@ def observe_flapping(r: RotorAwareConstants, s: FloatArray, flap_hat: int, achie
     g = 1.0 - r.phi
     s[flap_hat] = r.phi * s[flap_hat] + g * (r.a_lon * achieved[EPS] - r.tau_e_s * q)
     s[flap_hat + 1] = r.phi * s[flap_hat + 1] + g * (r.b_lat * achieved[ETA] - r.tau_e_s * p)
+
+
+@njit
+def correct_flapping(r: RotorAwareConstants, s: FloatArray, flap_hat: int, rate_hat: int, p: float, q: float,
+                     first: bool) -> None:  # fmt: skip
+    """The rate-corrected observer's measurement update (``r.correct``), before loop 5 reads
+    the estimate: the measured ``p, q`` against their one-tick prediction ``s[rate_hat:+2]``
+    correct ``a1^, b1^`` (``s[flap_hat:+2]``) and the rates' estimate by the Kalman gain. On the
+    first tick the prediction is the measurement (no innovation)."""
+    if first:
+        s[rate_hat], s[rate_hat + 1] = p, q
+        return
+    k = r.obs_gain
+    ep = p - s[rate_hat]
+    eq = q - s[rate_hat + 1]
+    s[rate_hat] += k[OG_P, 0] * ep + k[OG_P, 1] * eq
+    s[rate_hat + 1] += k[OG_Q, 0] * ep + k[OG_Q, 1] * eq
+    s[flap_hat] += k[OG_A1, 0] * ep + k[OG_A1, 1] * eq
+    s[flap_hat + 1] += k[OG_B1, 0] * ep + k[OG_B1, 1] * eq
+
+
+@njit
+def predict_rates_and_flapping(
+    r: RotorAwareConstants, c: PlantConstants, j: FloatArray, j_inv: FloatArray, s: FloatArray, flap_hat: int,
+    rate_hat: int, achieved: FloatArray, yaw_rate: float,
+) -> None:  # fmt: skip
+    """The rate-corrected observer's one-tick prediction (``r.correct``), from the corrected
+    estimate and the pitches the servos achieved, held: the flapping as
+    :func:`observe_flapping` on the estimated rates, then the rates from the design model's
+    torque (loop 4's: ``Q = QA (T_t, a1, b1) + QB`` with the hub spring, thrusts from the
+    achieved collective and tail pitch through the design rotor maps) at the tick's mean
+    flapping, ``omega+ = omega + dt J^-1 (Q - omega x J omega)``."""
+    p0, q0 = s[rate_hat], s[rate_hat + 1]
+    a0, b0 = s[flap_hat], s[flap_hat + 1]
+    g = 1.0 - r.phi
+    a1 = r.phi * a0 + g * (r.a_lon * achieved[EPS] - r.tau_e_s * q0)
+    b1 = r.phi * b0 + g * (r.b_lat * achieved[ETA] - r.tau_e_s * p0)
+    am, bm = 0.5 * (a0 + a1), 0.5 * (b0 + b1)
+    tm = rotor.thrust_coeff(achieved[THETA_M], c.a_m, c.s_m) * c.thrust_scale_m
+    tt = rotor.thrust_coeff(achieved[THETA_T], c.a_t, c.s_t) * c.thrust_scale_t
+    qm = main_rotor_torque(tm, c)
+    lever = tm * c.hm + r.k_hub_n_m
+    q_l = c.ht * tt + qm * am + lever * bm
+    q_m = lever * am - qm * bm + tm * c.lm
+    q_n = c.lt * tt - tm * c.lm * bm - qm
+    w0, w1, w2 = p0, q0, yaw_rate
+    h0 = j[0, 0] * w0 + j[0, 1] * w1 + j[0, 2] * w2
+    h1 = j[1, 0] * w0 + j[1, 1] * w1 + j[1, 2] * w2
+    h2 = j[2, 0] * w0 + j[2, 1] * w1 + j[2, 2] * w2
+    t0 = q_l - (w1 * h2 - w2 * h1)
+    t1 = q_m - (w2 * h0 - w0 * h2)
+    t2 = q_n - (w0 * h1 - w1 * h0)
+    dt = r.dt_s
+    s[rate_hat] = p0 + dt * (j_inv[0, 0] * t0 + j_inv[0, 1] * t1 + j_inv[0, 2] * t2)
+    s[rate_hat + 1] = q0 + dt * (j_inv[1, 0] * t0 + j_inv[1, 1] * t1 + j_inv[1, 2] * t2)
+    s[flap_hat], s[flap_hat + 1] = a1, b1
