@@ -65,3 +65,58 @@ def test_paired_counts_a_lost_flight_against_the_loser_never_drops_the_pair() ->
     assert paired(base, a).a_better_fraction == 0.2  # the same pairs seen from b: its 20 wins
     tie = paired(np.full(5, np.nan), np.full(5, np.inf))
     assert tie.n == 5 and math.isnan(tie.wilcoxon_p) and tie.a_better_fraction == 0.0
+
+
+def test_holm_adjusts_a_family_as_holm_1979() -> None:
+    """p = (0.01, 0.04, 0.03, 0.005): sorted 0.005, 0.01, 0.03, 0.04 scaled by 4, 3, 2, 1 to
+    0.02, 0.03, 0.06, 0.04, the running maximum 0.02, 0.03, 0.06, 0.06; a NaN (no test) is
+    no member of the family."""
+    from heli_sitl.studies.stats import holm
+
+    assert holm([0.01, 0.04, 0.03, 0.005]) == pytest.approx([0.03, 0.06, 0.06, 0.02], rel=1e-12)
+    adj = holm([0.01, math.nan, 0.04])
+    assert adj[0] == pytest.approx(0.02) and math.isnan(adj[1]) and adj[2] == pytest.approx(0.04)
+    assert holm([0.6, 0.7]) == [1.0, 1.0]  # capped at 1
+    assert holm([]) == []
+
+
+def test_a_grid_is_a_map_with_no_interval() -> None:
+    """A grid's loss share is a fact of its points: counted, never given a binomial interval."""
+    import pyarrow as pa
+
+    from heli_sitl.studies.campaigns.counts import CampaignCounts
+    from heli_sitl.studies.stats import Interval
+
+    rows = pa.table({"failed": [False] * 10, "diverged": [True] * 4 + [False] * 6,
+                     "converged": [False] * 4 + [True] * 6})  # fmt: skip
+    sampled, grid = CampaignCounts.of(rows), CampaignCounts.of(rows, sampled=False)
+    assert sampled.loss_rate is not None and sampled.loss_rate.lo < 0.4 < sampled.loss_rate.hi
+    assert grid.loss_rate is None and grid.diverged == 4
+    assert "40.00 % of the grid's points (a map: no interval)" in grid.line()
+    assert "loss_rate" not in grid.as_dict() and "loss_rate" in sampled.as_dict()
+    assert Interval.of_grid(0.4).pct() == "40.00 % (grid)" and str(Interval.of_grid(0.25)) == "0.25 (grid)"
+
+
+def test_the_comparisons_tables_give_holm_adjusted_p_values() -> None:
+    """Two contenders against one reference on 40 seeds: each table's p-values are one
+    family, adjusted together (the raw Wilcoxon p of each pair, scaled by Holm's rule)."""
+    from heli_sitl.studies.comparison import MonteCarloSet, _p, monte_carlo_table
+    from heli_sitl.studies.scorecard import FlightScore
+    from heli_sitl.studies.stats import holm
+
+    rng = np.random.default_rng(7)
+    names = FlightScore.names()
+
+    def scores(shift: float) -> tuple[FlightScore, ...]:
+        return tuple(FlightScore(**{n: 0.0 for n in names} | {"steady_rms_m": 1.0 + shift + rng.normal(0, 0.1),
+                                                             "transient_peak_m": 2.0 + rng.normal(0, 0.1)})
+                     for _ in range(40))  # fmt: skip
+
+    ms = MonteCarloSet("gusty", 40, {"ref": scores(0.0), "a": scores(0.03), "b": scores(0.08)}, "ref")
+    raw = [ms.against_reference(lab, m).wilcoxon_p for lab in ("a", "b")
+           for m in ("steady_rms_m", "transient_peak_m")]  # fmt: skip
+    table = monte_carlo_table([ms])
+    cells = [line.split(" | ")[-2:] for line in table.splitlines()[3:]]  # a's and b's rows
+    shown = [c.rsplit("(", 1)[1].rstrip(") |") for row in cells for c in row]
+    assert shown == [_p(p) for p in holm(raw)]
+    assert "Holm" in table.splitlines()[0]

@@ -55,7 +55,7 @@ from heli_sitl.studies.campaigns.run import run_campaign
 from heli_sitl.studies.campaigns.settings import canonical
 from heli_sitl.studies.campaigns.spec import CampaignSpec, Vary, load_campaign
 from heli_sitl.studies.scorecard import LABELS, FlightScore, score
-from heli_sitl.studies.stats import Interval, Paired, loss_rate, paired, percentile_ci
+from heli_sitl.studies.stats import Interval, Paired, holm, loss_rate, paired, percentile_ci
 
 TOP_KEYS = ("name", "plants", "plant", "reference", "seeds", "max_speed_m_s", "trajectory", "worlds",
             "campaigns", "contender")  # fmt: skip
@@ -419,11 +419,15 @@ def campaign_summary(t: pa.Table, spec: CampaignSpec) -> dict[str, Any]:
             else {"p50": math.nan, "p95": math.nan, "max": math.nan}
         )
     ok = ~failed
-    out["loss_rate"] = loss_rate(out["diverged"] + out["failed"], max(1, out["flights"]))
-    out["rms_10_ci"] = {
-        "p50": percentile_ci(_col(t, "rms_10_m")[ok], 50),
-        "p95": percentile_ci(_col(t, "rms_10_m")[ok], 95),
-    }
+    lost, flights = out["diverged"] + out["failed"], max(1, out["flights"])
+    rms = _col(t, "rms_10_m")[ok]
+    if spec.sampler == "grid":  # a map of the grid's points: its figures, no interval
+        out["loss_rate"] = Interval.of_grid(lost / flights)
+        out["rms_10_ci"] = {q: Interval.of_grid(float(np.percentile(rms, n)) if rms.size else math.nan)
+                            for q, n in (("p50", 50), ("p95", 95))}  # fmt: skip
+    else:
+        out["loss_rate"] = loss_rate(lost, flights)
+        out["rms_10_ci"] = {"p50": percentile_ci(rms, 50), "p95": percentile_ci(rms, 95)}
     keys = grid_keys(spec)
     if spec.sampler == "grid" and keys:
         low = {k: float(np.nanmin(_col(t, k))) for k in keys}
@@ -444,6 +448,8 @@ def _f(v: Any, fmt: str = ".3f") -> str:
 
 
 def _ci(iv: Interval, fmt: str = ".3f") -> str:
+    if iv.bare:  # a grid's figure: no interval over a map
+        return f"{_f(iv.estimate, fmt)} (grid)"
     return f"{_f(iv.estimate, fmt)} [{_f(iv.lo, fmt)}, {_f(iv.hi, fmt)}]"
 
 
@@ -516,10 +522,11 @@ def monte_carlo_table(sets: list[MonteCarloSet]) -> str:
         "steady RMS p95 [CI] m",
         "transient peak p50 [CI] m",
         "cyclic rate RMS p50 [CI] rad/s",
-        "steady RMS minus reference: p50 [CI] m (Wilcoxon p)",
-        "transient peak minus reference: p50 [CI] m (Wilcoxon p)",
+        "steady RMS minus reference: p50 [CI] m (Wilcoxon p, Holm)",
+        "transient peak minus reference: p50 [CI] m (Wilcoxon p, Holm)",
     ]
-    rows = []
+    rows: list[list[str]] = []
+    tests: list[tuple[int, int, float]] = []  # (row, column, raw p): one family, the table
     for ms in sets:
         for lab in ms.scores:
             lost = int(ms.values(lab, "lost").sum())
@@ -540,9 +547,12 @@ def monte_carlo_table(sets: list[MonteCarloSet]) -> str:
                 pr = ms.against_reference(lab, metric)
                 if ms.deterministic:
                     cells.append(_f(pr.median_diff.estimate, "+.4f"))
-                else:
-                    cells.append(f"{_ci(pr.median_diff, '+.4f')} ({_p(pr.wilcoxon_p)})")
+                else:  # its p is the table's family's, filled in below
+                    tests.append((len(rows), len(cells), pr.wilcoxon_p))
+                    cells.append(f"{_ci(pr.median_diff, '+.4f')} ({{p}})")
             rows.append(cells)
+    for (r, col), p in zip(((r, col) for r, col, _ in tests), holm([p for *_, p in tests]), strict=True):
+        rows[r][col] = rows[r][col].format(p=_p(p))
     return md_table(header, rows)
 
 
@@ -553,17 +563,20 @@ def campaign_paired_table(tables: dict[str, pa.Table], reference: str) -> str:
     ref = tables[reference]
     ids = _col(ref, "sample_id")
     header = ["controller", "flights paired (lost: it / the reference)", "RMS [10,end] minus reference: "
-              "p50 [CI] m (both flown)", "Wilcoxon p (losses as the worst)",
+              "p50 [CI] m (both flown)", "Wilcoxon p, Holm (losses as the worst)",
               "better than the reference in"]  # fmt: skip
-    rows = []
+    rows, p_raw = [], []
     for lab, t in tables.items():
         if lab == reference:
             continue
         other = dict(zip(_col(t, "sample_id"), _scored(t), strict=True))
         a = np.array([other.get(i, math.nan) for i in ids])
         pr = paired(a, _scored(ref))
+        p_raw.append(pr.wilcoxon_p)
         rows.append([lab, f"{pr.n} (lost {pr.lost_a} / {pr.lost_b})", _ci(pr.median_diff, "+.4f"),
-                     _p(pr.wilcoxon_p), f"{100 * pr.a_better_fraction:.0f} %"])  # fmt: skip
+                     "", f"{100 * pr.a_better_fraction:.0f} %"])  # fmt: skip
+    for row, p in zip(rows, holm(p_raw), strict=True):  # the table's contenders, one family
+        row[3] = _p(p)
     return md_table(header, rows)
 
 

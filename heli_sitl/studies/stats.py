@@ -6,12 +6,18 @@ a paired difference. Pure functions over arrays; every random draw from a given 
 * :func:`percentile_ci`: the percentile bootstrap of a percentile (Efron & Tibshirani 1993,
   ch. 13), resampling the flights;
 * :func:`paired`: two contenders flown on the same samples: the bootstrap interval of the
-  median of the per-sample differences and the Wilcoxon signed-rank test (scipy) of them.
+  median of the per-sample differences and the Wilcoxon signed-rank test (scipy) of them;
+* :func:`holm`: a table's p-values adjusted as one family (Holm 1979), so that a reader may
+  hold each against 0.05 however many tests the table makes.
+
+A grid (a campaign's ``sampler = "grid"``) is a map, not a sample: its counts are facts of
+the grid, and no interval is drawn over them.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,11 +37,25 @@ class Interval:
     hi: float
     confidence: float = CONFIDENCE
 
+    @classmethod
+    def of_grid(cls, value: float) -> Interval:
+        """A figure of a grid (a map, not a sample): the value, no interval."""
+        return cls(value, math.nan, math.nan)
+
+    @property
+    def bare(self) -> bool:
+        """No interval: a grid's figure."""
+        return math.isnan(self.lo) and math.isnan(self.hi) and not math.isnan(self.estimate)
+
     def __str__(self) -> str:
+        if self.bare:
+            return f"{self.estimate:.4g} (grid)"
         return f"{self.estimate:.4g} [{self.lo:.4g}, {self.hi:.4g}]"
 
     def pct(self) -> str:
         """As percentages (a rate)."""
+        if self.bare:
+            return f"{100 * self.estimate:.2f} % (grid)"
         return f"{100 * self.estimate:.2f} % [{100 * self.lo:.2f}, {100 * self.hi:.2f}] %"
 
 
@@ -112,3 +132,21 @@ def paired(a: npt.ArrayLike, b: npt.ArrayLike, seed: int = 0, confidence: float 
         lost_a=int(np.count_nonzero(~fa)),
         lost_b=int(np.count_nonzero(~fb)),
     )
+
+
+def holm(p_values: Sequence[float]) -> list[float]:
+    """Holm's step-down adjustment of a family of p-values (S. Holm, "A simple sequentially
+    rejective multiple test procedure", Scand. J. Statist. 6, 1979): the i-th smallest of the
+    m tests is scaled by m - i + 1, the running maximum taken and capped at 1, so each
+    adjusted p is held against the family's level directly. A NaN (no test made) stays NaN
+    and is not one of the family."""
+    p = np.asarray(p_values, dtype=float)
+    out = np.full(p.shape, math.nan)
+    tested = np.flatnonzero(np.isfinite(p))
+    order = tested[np.argsort(p[tested], kind="stable")]
+    m = order.size
+    running = 0.0
+    for i, k in enumerate(order):
+        running = max(running, min(1.0, (m - i) * float(p[k])))
+        out[k] = running
+    return [float(v) for v in out]

@@ -57,7 +57,10 @@ class CampaignCounts:
         return self.flown - self.converged - self.diverged
 
     @classmethod
-    def of(cls, table: pa.Table) -> CampaignCounts:
+    def of(cls, table: pa.Table, sampled: bool = True) -> CampaignCounts:
+        """The counts of a campaign's rows. ``sampled``: the flights are a random sample
+        of what could be flown, so their loss rate estimates a probability and carries its
+        interval; a grid's (``sampler = "grid"``) is a fact of the grid, given bare."""
         o = outcomes(table)
         failed, div = o["failed"], o["diverged"]
         n = int(table.num_rows)
@@ -74,7 +77,7 @@ class CampaignCounts:
                                                               strict=True) if d]  # fmt: skip
                 reasons = {r: why.count(r) for r in sorted(set(why))}
             flown = n - int(failed.sum())
-            if flown > 0:
+            if flown > 0 and sampled:
                 rate = loss_rate(diverged, flown)
         return cls(n, int(failed.sum()), converged, diverged, reasons, rate)
 
@@ -109,4 +112,7 @@ class CampaignCounts:
             lr = self.loss_rate
             text += (f"; loss rate {100 * lr.estimate:.2f} % [{100 * lr.lo:.2f}, {100 * lr.hi:.2f}] % "
                      "(95 %, exact)")  # fmt: skip
+        elif self.diverged is not None and self.flown > 0:  # a grid: the share of its points
+            share = 100 * self.diverged / self.flown
+            text += f"; lost at {share:.2f} % of the grid's points (a map: no interval)"
         return text

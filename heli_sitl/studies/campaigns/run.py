@@ -236,7 +236,7 @@ def run_campaign(
     results, drawn = drawing.finish()
     wall = time.perf_counter() - t_start  # to the rows and the figures
     duration = spec.duration_s or base.scenario.run.duration_s
-    c = CampaignCounts.of(results)
+    c = CampaignCounts.of(results, sampled=spec.sampler != "grid")
     rows = report.summary_rows(spec, results)
     workers_used = stats.workers or n_workers
     flown_s = stats.flights * duration
