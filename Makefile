@@ -28,8 +28,8 @@ test: lint
 	$(BIN)/python -m heli_sitl.warmup
 	# a real-time and a CPU worker per core (at most four, in the lanes of tests/lanes.py),
 	# handed the tests file by file so that a module's fixtures are built once
-	# (tests/conftest.py); the ten slowest tests printed at the end
-	$(BIN)/pytest -q -n auto --maxprocesses 4 --dist loadfile --durations 10
+	# (tests/conftest.py); the 25 slowest tests printed at the end
+	$(BIN)/pytest -q -n auto --maxprocesses 4 --dist loadfile --durations 25
 
 # prints the table and writes it into docs/performance.md between its markers (nothing copied by hand)
 bench: $(STAMP)

@@ -107,10 +107,13 @@ def test_the_comparisons_tables_give_holm_adjusted_p_values() -> None:
     rng = np.random.default_rng(7)
     names = FlightScore.names()
 
+    def score(shift: float) -> FlightScore:
+        noisy = {"steady_rms_m": 1.0 + shift + rng.normal(0, 0.1),
+                 "transient_peak_m": 2.0 + rng.normal(0, 0.1)}
+        return FlightScore(**{n: 0.0 for n in names} | noisy)
+
     def scores(shift: float) -> tuple[FlightScore, ...]:
-        return tuple(FlightScore(**{n: 0.0 for n in names} | {"steady_rms_m": 1.0 + shift + rng.normal(0, 0.1),
-                                                             "transient_peak_m": 2.0 + rng.normal(0, 0.1)})
-                     for _ in range(40))  # fmt: skip
+        return tuple(score(shift) for _ in range(40))
 
     ms = MonteCarloSet("gusty", 40, {"ref": scores(0.0), "a": scores(0.03), "b": scores(0.08)}, "ref")
     raw = [ms.against_reference(lab, m).wilcoxon_p for lab in ("a", "b")
