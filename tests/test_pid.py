@@ -30,9 +30,10 @@ from heli_sitl.engine.closed_loop import SimOptions, simulate
 @pytest.mark.parametrize("gains_file", ["starts/pid_table2.toml", "gains_pid.toml"])
 def test_rate_loop_step_matches_its_design_on_the_hover_inertia(gains_file: str) -> None:
     """About hover the body rates obey J w' = tau - w x J w, and the PID commands
-    tau = J alpha + w x J w: each axis is w' = alpha = kp e + ki int(e) - kd w'_filtered,
-    and the rate loop closes to (kp s + ki) / ((1 + kd) s^2 + kp s + ki) (the derivative
-    filter, 20 Hz, far above the loop). Table 2's design: omega_n = sqrt(ki) = 12 rad/s,
+    tau = J alpha + w x J w: each axis is w' = alpha = ff wc + kp e + ki int(e) - kd w'_filtered,
+    and the rate loop closes to ((kp + ff) s + ki) / ((1 + kd) s^2 + kp s + ki) (the
+    derivative filter, 20 Hz, far above the loop; the set point's feed-forward ff only in the
+    numerator). Table 2's design: omega_n = sqrt(ki) = 12 rad/s,
     zeta = kp / (2 omega_n) = 0.708; the tuned gains have their own. The compiled loop at
     100 Hz (w held over a tick) gives that step response."""
     gains = PidGains.load(gains_file)
@@ -47,9 +48,9 @@ def test_rate_loop_step_matches_its_design_on_the_hover_inertia(gains_file: str)
         alpha = rate_loop(k, s, w, wc, i == 0)
         s[P_I_RATE : P_I_RATE + 3] += k.dt_s * (wc - w)  # as the kernel integrates (no saturation)
         w = w + k.dt_s * alpha
-    kp, ki, kd = gains.rate.kp[0], gains.rate.ki[0], gains.rate.kd[0]
+    kp, ki, kd, ff = gains.rate.kp[0], gains.rate.ki[0], gains.rate.kd[0], gains.rate.ff[0]
     t = np.arange(n) * k.dt_s
-    _, theory = signal.step(signal.lti([kp, ki], [1.0 + kd, kp, ki]), T=t)
+    _, theory = signal.step(signal.lti([kp + ff, ki], [1.0 + kd, kp, ki]), T=t)
     if gains_file == "starts/pid_table2.toml":
         assert math.sqrt(ki) == pytest.approx(12.0)
         assert kp / (2 * math.sqrt(ki)) == pytest.approx(0.708, abs=1e-3)

@@ -9,7 +9,8 @@ About hover, one channel at a time (the numbering of the TLC's loops, inner to o
   actuator ``A(s)`` (servo delay + half a period of hold, first-order lag) and ``1/s`` (``J``
   cancels, the law multiplies by the design ``J``); the regulator is ``Kpi = kp + ki/s`` on
   the error and ``Kd = kd s / (tau_d s + 1)`` on the measured rate (the derivative filter at
-  ``d_filter_hz``): ``L4 = A (Kpi + Kd) / s``, ``T4 = A Kpi / (s + A (Kpi + Kd))``;
+  ``d_filter_hz``), the rate set point's feed-forward ``ff`` outside the loop:
+  ``L4 = A (Kpi + Kd) / s``, ``T4 = A (Kpi + ff) / (s + A (Kpi + Kd))``;
 * loop 3, attitude: ``L3 = kp_att T4 / s``;
 * loop 2, velocity: x through the closed pitch loop, y through the closed roll loop (the
   tilt set point is the acceleration over g), z through the collective's actuator alone:
@@ -55,7 +56,8 @@ def _stages(gains: PidGains, s: Any, a: _Ratio) -> dict[tuple[int, int], tuple[_
         pi = s * r.kp[ch] + r.ki[ch]  # Kpi = pi / s
         nc = pi * f + s * s * r.kd[ch]  # Kpi + Kd = nc / (s f)
         char = a.den * f * s * s + a.num * nc
-        out[4, ch] = (_Ratio(a.num * nc, a.den * f * s * s), _Ratio(a.num * pi * f, char), char)
+        ref = (pi + s * r.ff[ch]) * f  # the set point's path: Kpi + ff, times s f
+        out[4, ch] = (_Ratio(a.num * nc, a.den * f * s * s), _Ratio(a.num * ref, char), char)
     for ch in range(3):
         t4 = out[4, ch][1]
         k = gains.attitude.kp[ch]

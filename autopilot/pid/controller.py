@@ -1,9 +1,11 @@
-"""The cascaded PID baseline, as PX4's and ArduPilot's multicopter/helicopter controllers
-are built: position P -> velocity PI (with the trajectory's velocity and acceleration as
-feed-forward) -> thrust vector with a tilt limit -> attitude set point -> attitude P ->
-body-rate PID (derivative on the filtered measurement, clamped integrators frozen while an
-output saturates) -> torque -> the four blade pitches through the inverse rotor maps of
-the spec, the very allocation the TLC uses (autopilot/tlc/allocation.py, inversion.py).
+"""The cascaded PID baseline, built as ArduPilot's helicopter stack (AC_PosControl over
+AC_AttitudeControl_Heli): position P -> velocity PI (the trajectory's velocity and
+acceleration as feed-forward; the vertical channel sets the collective's thrust) -> thrust
+vector with a tilt limit -> attitude set point plus the hover roll trim (ATC_HOVR_ROL_TRM)
+-> attitude P (the path's yaw rate as feed-forward) -> body-rate PID with the set point's
+feed-forward (RAT_*_FF; derivative on the filtered measurement, clamped integrators frozen
+while an output saturates) -> torque -> the four blade pitches through the inverse rotor maps
+of the spec, the very allocation the TLC uses (autopilot/tlc/allocation.py, inversion.py).
 
 Same contract as the TLC: ``update(t, state, reference) -> pitches``, no I/O, no clock; the
 whole law is one compiled kernel (:func:`pid_kernel`) over a flat state with named offsets.
@@ -69,11 +71,14 @@ class PIDConstants(NamedTuple):
     kp_vel: FloatArray
     ki_vel: FloatArray
     i_max_vel: float
+    accel_max_z: float
     kp_att: FloatArray
     max_rate: FloatArray
+    hover_roll_trim_rad: float
     kp_rate: FloatArray
     ki_rate: FloatArray
     kd_rate: FloatArray
+    ff_rate: FloatArray
     d_alpha: float  # derivative filter: first order at d_filter_hz, discretised
     i_max_rate: float
     tilt_max_rad: float
@@ -92,9 +97,12 @@ def make_pid_constants(airframe: Airframe, gains: PidGains, rate_hz: float) -> P
         j=a([[c.ixx, 0.0, -c.ixz], [0.0, c.iyy, 0.0], [-c.ixz, 0.0, c.izz]]), dt_s=dt,
         kp_pos=a(gains.position.kp, dtype=float), max_speed=gains.position.max_speed_m_s,
         kp_vel=a(gains.velocity.kp, dtype=float), ki_vel=a(gains.velocity.ki, dtype=float),
-        i_max_vel=gains.velocity.i_max_m_s2, kp_att=a(gains.attitude.kp, dtype=float),
-        max_rate=a(gains.attitude.max_rate_rad_s, dtype=float), kp_rate=a(gains.rate.kp, dtype=float),
+        i_max_vel=gains.velocity.i_max_m_s2, accel_max_z=gains.velocity.accel_max_z_m_s2,
+        kp_att=a(gains.attitude.kp, dtype=float),
+        max_rate=a(gains.attitude.max_rate_rad_s, dtype=float),
+        hover_roll_trim_rad=gains.attitude.hover_roll_trim_rad, kp_rate=a(gains.rate.kp, dtype=float),
         ki_rate=a(gains.rate.ki, dtype=float), kd_rate=a(gains.rate.kd, dtype=float),
+        ff_rate=a(gains.rate.ff, dtype=float),
         d_alpha=dt / (tau_d + dt), i_max_rate=gains.rate.i_max_rad_s2,
         tilt_max_rad=gains.limits.tilt_max_rad, yaw_hold_speed_m_s=gains.limits.yaw_hold_speed_m_s,
     )  # fmt: skip
@@ -107,8 +115,10 @@ def _or0(v: float) -> float:
 
 @njit
 def rate_loop(k: PIDConstants, s: FloatArray, om: FloatArray, wc: FloatArray, first: bool) -> FloatArray:
-    """Body-rate PID: the angular acceleration command for rate set point ``wc`` and
-    measured rates ``om`` (integrators are advanced by the caller, who knows saturation)."""
+    """Body-rate PID with feed-forward: the angular acceleration command for rate set point
+    ``wc`` and measured rates ``om`` (integrators are advanced by the caller, who knows
+    saturation). The feed-forward ``ff wc`` acts outside the loop: a rotor whose cyclic sets a
+    rate gets the command that holds ``wc`` at once, not after the integrator has wound."""
     if first:
         s[P_LAST_RATE : P_LAST_RATE + 3] = om
         s[P_D_RATE : P_D_RATE + 3] = 0.0
@@ -117,7 +127,8 @@ def rate_loop(k: PIDConstants, s: FloatArray, om: FloatArray, wc: FloatArray, fi
         raw = (om[i] - s[P_LAST_RATE + i]) / k.dt_s
         s[P_D_RATE + i] += k.d_alpha * (raw - s[P_D_RATE + i])
         e = wc[i] - om[i]
-        alpha[i] = k.kp_rate[i] * e + k.ki_rate[i] * s[P_I_RATE + i] - k.kd_rate[i] * s[P_D_RATE + i]
+        alpha[i] = (k.ff_rate[i] * wc[i] + k.kp_rate[i] * e + k.ki_rate[i] * s[P_I_RATE + i]
+                    - k.kd_rate[i] * s[P_D_RATE + i])  # fmt: skip
     s[P_LAST_RATE : P_LAST_RATE + 3] = om
     return alpha
 
@@ -160,10 +171,14 @@ def pid_kernel(
     rt = rot_body_to_earth(gam[0], gam[1], gam[2])
     ve = vsp - mat_vec(rt, vel)
     asp = ar + k.kp_vel * ve + k.ki_vel * s[P_I_VEL : P_I_VEL + 3]
+    z_limited = abs(asp[2]) > k.accel_max_z
+    asp[2] = min(max(asp[2], -k.accel_max_z), k.accel_max_z)
     # --- thrust vector with a tilt limit -> thrust and roll/pitch set point (the TLC's inversion)
     fc = c.mass_kg * mat_t_vec(rt, asp)
     tilt_limited = limit_tilt(fc, mg, k.tilt_max_rad)
     tm, phi_c, theta_c = force_to_thrust_attitude(fc, mg)
+    # the bank that holds the tail rotor's side force, which the force model above leaves out
+    phi_c += k.hover_roll_trim_rad
     # --- yaw set point: nose along the path, as the TLC
     dpsi_c = yaw_rate_command(vr[0], vr[1], ar[0], ar[1], k.yaw_hold_speed_m_s)
     # --- attitude P -> body-rate set point (yaw rate feed-forward), limited
@@ -174,7 +189,7 @@ def pid_kernel(
     wc = mat_vec(euler_rate_matrix(gam[0], gam[1]), de)
     for i in range(3):
         wc[i] = min(max(wc[i], -k.max_rate[i]), k.max_rate[i])
-    # --- body-rate PID -> torque (rigid-body feed-forward omega x J omega)
+    # --- body-rate PID with the set point's feed-forward -> torque (rigid-body omega x J omega)
     alpha = rate_loop(k, s, om, wc, first)
     qc = mat_vec(k.j, alpha) + cross(om, mat_vec(k.j, om))
 
@@ -188,6 +203,8 @@ def pid_kernel(
     if not hold_integrators:
         if not (saturated or tilt_limited):
             for i in range(3):
+                if i == 2 and z_limited:
+                    continue
                 v = s[P_I_VEL + i] + dt * ve[i]
                 lim_v = k.i_max_vel / max(k.ki_vel[i], 1e-9)
                 s[P_I_VEL + i] = min(max(v, -lim_v), lim_v)

@@ -24,12 +24,21 @@ class VelocityGains:
     kp: Vec3 = spec("1/s", 0.0, 50.0)  # acceleration per m/s of error
     ki: Vec3 = spec("1/s^2", 0.0, 50.0)
     i_max_m_s2: float = spec("m/s^2", 0.0, 20.0, default=3.0)  # integrator clamp (anti-windup)
+    # the vertical acceleration set point's limit (ArduPilot's PSC_ACCZ limit): far below or
+    # above its path the law would command the thrust to zero or below, where the cyclic's
+    # moment (thrust times the hub's height in the design model) changes sign
+    accel_max_z_m_s2: float = spec("m/s^2", 0.5, 100.0, default=100.0)
 
 
 @dataclass(frozen=True)
 class AttitudeGains:
     kp: Vec3 = spec("1/s", 0.0, 100.0)  # body-rate set point per rad of error
     max_rate_rad_s: Vec3 = spec("rad/s", 0.1, 20.0, default=(3.0, 3.0, 2.0))
+    # added to the roll set point (ArduPilot's ATC_HOVR_ROL_TRM): the tail rotor's side force
+    # is held by a constant bank that the law's force model (thrust along the mast) does not
+    # know; left to the earth-frame velocity integrator, that body-fixed bias turns with the
+    # heading and the integrator lags it on every turn
+    hover_roll_trim_rad: float = spec("rad", -0.3, 0.3, default=0.0)
 
 
 @dataclass(frozen=True)
@@ -37,6 +46,10 @@ class RateGains:
     kp: Vec3 = spec("1/s", 0.0, 500.0)  # angular acceleration per rad/s of error
     ki: Vec3 = spec("1/s^2", 0.0, 5000.0)
     kd: Vec3 = spec("", 0.0, 10.0)  # on the measured rate, filtered
+    # feed-forward of the rate set point (ArduPilot's RAT_*_FF): on a rotor whose cyclic sets a
+    # rate rather than an acceleration, the command that holds a rate without waiting for the
+    # integrator; 0 on a rigid body (the paper's model)
+    ff: Vec3 = spec("1/s", 0.0, 500.0, default=(0.0, 0.0, 0.0))
     d_filter_hz: float = spec("Hz", 1.0, 200.0, default=20.0)
     i_max_rad_s2: float = spec("rad/s^2", 0.0, 500.0, default=20.0)
 
