@@ -166,11 +166,11 @@ def test_bad_comparison_files_are_refused(tmp_path: Path) -> None:
             load_compare(f)
         assert expected in str(err.value), (text, str(err.value))
     shipped = load_compare()  # the shipped file loads
-    assert [c.label for c in shipped.contenders][-1] == "PID, tuned"
+    assert [c.label for c in shipped.contenders][-1] == "PID, ArduPilot-style"
     assert shipped.plants == ("gavrilets", "paper")
     assert Contender("TLC, paper Table 2").slug == "tlc-paper-table-2"
     # each contender flies the gains tuned for the plant it is on; each plant has its reference
-    pid = {c.label: c for c in shipped.contenders}["PID, tuned"]
+    pid = {c.label: c for c in shipped.contenders}["PID, ArduPilot-style"]
     assert pid.on("gavrilets").pid_gains == "gains_pid_rotor.toml"
     assert pid.on("paper").pid_gains == "gains_pid.toml"
     assert shipped.reference_for("gavrilets") == "TLC, rotor-aware"

@@ -18,12 +18,19 @@ the differentiators are all in it.
 Servos: delay (to the nearest control period, as the flights realise it at the control rate)
 and lag linearise exactly; the rate limit,
 quantum and dead band are small-signal inactive and left out (the flights keep them).
+
+Over the envelope (:func:`envelope_margins`, ``heli-sitl margins --envelope``): the same tick
+about trimmed level flight at speed, in a frame moving with the reference
+(:class:`MovingTickMap`), with a computation delay of whole ticks on the controller's output
+(:func:`delayed`), and the simultaneous margins of autopilot.analysis.envelope_margins beside
+the loop-at-a-time ones.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -31,6 +38,14 @@ import control as ct
 import numpy as np
 from scipy.optimize import least_squares
 
+from autopilot.analysis.envelope_margins import (
+    Disk,
+    EnvelopeRow,
+    EnvelopeTable,
+    full_block_disk,
+    simultaneous_disk,
+    siso_disk,
+)
 from autopilot.control import N_DIAG, KernelController
 from autopilot.reference import N_REF
 from heli_common.state import N_PITCH, N_STATE, PITCH_NAMES, STATE_NAMES, FloatArray
@@ -267,24 +282,13 @@ def balanced_disk(name: str, siso: FloatArray) -> BreakPoint:
     return _from_alpha(name, float(1.0 / np.max(np.abs(s - 0.5))))
 
 
-def loop_blocks(
-    controller: KernelController[Any], model: PlantModel, design: Airframe, servos: Servos
+def _blocks(
+    tm: TickMap, z: FloatArray, jac: FloatArray, keep: np.ndarray[Any, np.dtype[np.bool_]], dt: float
 ) -> LoopBlocks:
-    """The controller and plant blocks of ``controller`` on ``model`` at hover, with ``servos``."""
-    tm, z0 = build_tick_map(controller, model, design, servos)
-    z, residual = fixed_point(tm, z0)
-    if residual > FIXED_POINT_TOL:
-        raise ValueError(
-            f"{controller.kind} on the {model.kind} plant: no hover equilibrium found "
-            f"(|F(z) - z| = {residual:.1e})"
-        )
-    jac = _jacobian(tm, z)
-    # states the tick only holds (z_i+ = z_i and nothing else: the yaw command of a hover
-    # reference, whose every value is an equilibrium) are references, not dynamics
-    eye = np.eye(jac.shape[0])
-    keep = np.array([not np.allclose(jac[i], eye[i], rtol=0.0, atol=1e-10) for i in range(jac.shape[0])])
-    lam = np.linalg.eigvals(jac[np.ix_(keep, keep)])
-    # the blocks: plant p = (x, rotor, servos) with input u; controller c with input x
+    """The closed loop's eigenvalues over the ``keep`` states, and its two blocks about the
+    equilibrium ``z``: the plant p = (x, rotor, servos) with input u, and the controller
+    (its kept states) with input x."""
+    lam: FloatArray = np.asarray(np.linalg.eigvals(jac[np.ix_(keep, keep)]))  # complex in general
     nx, nr, ns, _nc = tm.sizes
     npl = nx + nr + ns
     x, _r, _s, c = tm.split(z)
@@ -306,8 +310,26 @@ def loop_blocks(
     bc, ac = jc[N_PITCH:, :nx][kc], jc[N_PITCH:, nx:][np.ix_(kc, kc)]
     cp = np.zeros((nx, npl))
     cp[:, :nx] = np.eye(nx)
-    dt = controller.dt_s
     return LoopBlocks(Discrete(ac, bc, cc, dc, dt), Discrete(ap, bp, cp, np.zeros((nx, N_PITCH)), dt), lam)
+
+
+def loop_blocks(
+    controller: KernelController[Any], model: PlantModel, design: Airframe, servos: Servos
+) -> LoopBlocks:
+    """The controller and plant blocks of ``controller`` on ``model`` at hover, with ``servos``."""
+    tm, z0 = build_tick_map(controller, model, design, servos)
+    z, residual = fixed_point(tm, z0)
+    if residual > FIXED_POINT_TOL:
+        raise ValueError(
+            f"{controller.kind} on the {model.kind} plant: no hover equilibrium found "
+            f"(|F(z) - z| = {residual:.1e})"
+        )
+    jac = _jacobian(tm, z)
+    # states the tick only holds (z_i+ = z_i and nothing else: the yaw command of a hover
+    # reference, whose every value is an equilibrium) are references, not dynamics
+    eye = np.eye(jac.shape[0])
+    keep = np.array([not np.allclose(jac[i], eye[i], rtol=0.0, atol=1e-10) for i in range(jac.shape[0])])
+    return _blocks(tm, z, jac, keep, controller.dt_s)
 
 
 def linearize_loop(
@@ -361,5 +383,217 @@ def servo_model(name: str) -> tuple[str, Servos]:
     return name, World.load(name).servos
 
 
-__all__ = ["BreakPoint", "Discrete", "LoopBlocks", "LoopLinearization", "TickMap", "balanced_disk",
-           "linearize_loop", "loop_at_a_time", "loop_blocks", "servo_model"]  # fmt: skip
+
+
+# --- margins over the flight envelope: trimmed level flight at speed, a computation delay,
+# and the simultaneous (all inputs / all outputs at once) disk margins beside the loop-at-a-time
+# ones (issue 44, item 4; docs/tlc-rotor.md, "Margins over the envelope")
+
+
+@dataclass
+class MovingTickMap(TickMap):
+    """One tick in a frame that moves with the reference: level flight north at ``speed_m_s``
+    with the reference's position advancing ``speed dt`` a tick. The loop is translation
+    invariant (calm air, no ground effect at 20 m, every law acts on position differences), so
+    the tick minus the translation, ``F(z) - shift``, is a time-invariant map whose fixed point
+    is the trimmed flight and whose Jacobian is the real loop's at every tick of it. ``shift``
+    moves the north position and every controller state that moves with it (the
+    pseudo-differentiator of the position command, found by :func:`_translation`)."""
+
+    shift: FloatArray | None = None
+
+    def __call__(self, z: FloatArray) -> FloatArray:
+        out = super().__call__(z)
+        return out if self.shift is None else out - self.shift
+
+
+def _translation(controller: KernelController[Any], x0: FloatArray, ref: FloatArray) -> FloatArray:
+    """How each controller state moves when the vehicle and its reference move 1 m north:
+    the difference of the controller's first tick at two positions (its filters start at the
+    command; an integral or a rate does not move)."""
+
+    def first(dx: float) -> FloatArray:
+        st = controller.state.copy()
+        st[:] = 0.0
+        x, r = x0.copy(), ref.copy()
+        x[0] += dx
+        r[0] += dx
+        controller.kernel()(controller.constants, st, x, r, False, np.empty(N_PITCH), np.zeros(N_DIAG))
+        return st
+
+    g = first(1.0) - first(0.0)
+    rounded = np.round(g)
+    if not np.allclose(g, rounded, atol=1e-6):
+        raise ValueError(f"{controller.kind}: its state is not translation invariant ({g})")
+    return rounded
+
+
+def build_tick_map_at(
+    controller: KernelController[Any], model: PlantModel, design: Airframe, servos: Servos, speed_m_s: float
+) -> tuple[MovingTickMap, FloatArray]:
+    """The tick map in trimmed level flight north at ``speed_m_s`` (0: the hover of
+    :func:`build_tick_map`, the same map) and a start for its fixed point: the plant's trim
+    (heli_plant.trim) with the reference ``p0 + V t`` north, velocity ``V``, no acceleration."""
+    sv = dataclasses.replace(servos, rate_rad_s=(0.0,) * 4, quantum_rad=(0.0,) * 4, deadband_rad=(0.0,) * 4)
+    tr = trim(model, design, speed_m_s=speed_m_s, altitude_m=HOVER_ALT_M)
+    x0 = tr.x[:N_STATE].copy()
+    r0 = tr.x[N_STATE:].copy() if model.rotor is not None else None
+    world = WorldModel.build(World(servos=sv), design, x0, model.rotor, r0)
+    limits = np.array(design.limits.as_tuple())
+    world.prepare(controller.dt_s, tr.u, limits)
+    ref = np.zeros(N_REF)
+    ref[0:3] = x0[0:3]
+    ref[3] = speed_m_s  # earth NWU: north
+    n_servo = world.servo_s.size - 1 if sv.on else 0
+    nr = N_ROTOR if world.rotor.on else 0
+    g = _translation(controller, x0, ref)
+    shift = np.concatenate([np.eye(N_STATE)[0], np.zeros(nr + n_servo), g]) * speed_m_s * controller.dt_s
+    tm = MovingTickMap(controller, world, ref, limits[:, 0], limits[:, 1], n_servo,
+                       shift if speed_m_s != 0.0 else None)  # fmt: skip
+    ctrl = controller.state.copy()
+    ctrl[:] = 0.0
+    controller.kernel()(controller.constants, ctrl, x0, ref, False, np.empty(N_PITCH), np.zeros(N_DIAG))
+    z0 = np.concatenate([x0, [] if r0 is None else r0, world.servo_s[1 : 1 + n_servo], ctrl])
+    return tm, z0
+
+
+CONTINUATION_STEP_M_S = 2.5
+
+
+def _equilibrium_at(
+    controller: KernelController[Any], model: PlantModel, design: Airframe, servos: Servos, speed_m_s: float
+) -> tuple[MovingTickMap, FloatArray, float]:
+    """The fixed point of the moving tick map at ``speed_m_s``: from the plant's trim, else by
+    continuation in speed (steps of at most 2.5 m/s from hover, each started from the last two
+    solutions extrapolated: the equilibrium drifts with speed, a heading offset and loop 1's
+    integral among it, and a far start can leave the solver in a local minimum)."""
+    tm, z0 = build_tick_map_at(controller, model, design, servos, speed_m_s)
+    z, residual = fixed_point(tm, z0)
+    if residual <= FIXED_POINT_TOL or speed_m_s == 0.0:
+        return tm, z, residual
+    n = max(2, math.ceil(abs(speed_m_s) / CONTINUATION_STEP_M_S))
+    sols: list[FloatArray] = []
+    for v in np.linspace(0.0, speed_m_s, n + 1):
+        tm_v, z0_v = build_tick_map_at(controller, model, design, servos, float(v))
+        start = z0_v if not sols else sols[-1] if len(sols) == 1 else 2.0 * sols[-1] - sols[-2]
+        z_v, res_v = fixed_point(tm_v, start)
+        if res_v > FIXED_POINT_TOL:
+            return tm, z, residual  # the continuation broke off: the direct attempt's failure
+        sols.append(z_v)
+    return tm_v, sols[-1], res_v
+
+
+def loop_blocks_at(
+    controller: KernelController[Any], model: PlantModel, design: Airframe, servos: Servos,
+    speed_m_s: float = 0.0,
+) -> LoopBlocks:  # fmt: skip
+    """:func:`loop_blocks` about trimmed level flight at ``speed_m_s`` (0: hover, the same
+    blocks): the controller (measured state -> pitches) and the plant (pitches -> state)."""
+    tm, z, residual = _equilibrium_at(controller, model, design, servos, speed_m_s)
+    if residual > FIXED_POINT_TOL:
+        raise ValueError(f"{controller.kind} on the {model.kind} plant: no equilibrium in level flight at "
+                         f"{speed_m_s:g} m/s (|F(z) - z| = {residual:.1e})")  # fmt: skip
+    jac = _jacobian(tm, z)
+    eye = np.eye(jac.shape[0])
+    keep = np.array([not np.allclose(jac[i], eye[i], rtol=0.0, atol=1e-10) for i in range(jac.shape[0])])
+    nx, nr, ns, _nc = tm.sizes
+    keep &= ~_reference_states(jac, nx + nr + ns)
+    return _blocks(tm, z, jac, keep, controller.dt_s)
+
+
+def _reference_states(jac: FloatArray, n_plant: int) -> np.ndarray[Any, np.dtype[np.bool_]]:
+    """The controller states no plant state reaches (the reference's own filters: the
+    pseudo-differentiator of the position command, the yaw command that integrates the
+    path's turn rate): a state is one if its row depends only on such states. They are
+    dynamics of the reference, not of the loop (the yaw command's integrator is an eigenvalue
+    1 in flight along a path), and no loop transfer passes through them."""
+    n = jac.shape[0]
+    ref = np.zeros(n, dtype=bool)
+    ref[n_plant:] = True
+    while True:
+        driven = np.array([ref[i] and bool(np.any(np.abs(jac[i, ~ref]) > 1e-10)) for i in range(n)])
+        if not driven.any():
+            return ref
+        ref &= ~driven
+
+
+def delayed(blocks: LoopBlocks, ticks: int) -> LoopBlocks:
+    """The loop with ``ticks`` control periods of computation delay between the controller and
+    the servos (the pitches computed from tick k's measurement reach the hold at tick k +
+    ticks): the controller's output through ``z^-ticks``, exact in discrete time. The
+    eigenvalues are the assembled closed loop's (with 0 ticks, the tick Jacobian's)."""
+    if ticks < 0:
+        raise ValueError(f"ticks must be >= 0, got {ticks}")
+    if ticks == 0:
+        return blocks
+    k, p = blocks.controller, blocks.plant
+    nc, nu = k.a.shape[0], k.c.shape[0]
+    n = nc + ticks * nu
+    a = np.zeros((n, n))
+    a[:nc, :nc] = k.a
+    a[nc : nc + nu, :nc] = k.c  # the first slot takes this tick's output
+    for j in range(1, ticks):  # each slot passes to the next
+        a[nc + j * nu : nc + (j + 1) * nu, nc + (j - 1) * nu : nc + j * nu] = np.eye(nu)
+    b = np.vstack([k.b, k.d, np.zeros(((ticks - 1) * nu, k.b.shape[1]))])
+    c = np.zeros((nu, n))
+    c[:, nc + (ticks - 1) * nu :] = np.eye(nu)
+    kd = Discrete(a, b, c, np.zeros_like(k.d), k.dt)
+    return LoopBlocks(kd, p, closed_loop_eigenvalues(kd, p))
+
+
+def closed_loop_eigenvalues(k: Discrete, p: Discrete) -> FloatArray:
+    """The eigenvalues of plant ``p`` and controller ``k`` in negative-free feedback as the
+    tick composes them (``u = k(y)``, ``y = p(u)``, ``p`` strictly proper)."""
+    a = np.block([[p.a + p.b @ k.d @ p.c, p.b @ k.c], [k.b @ p.c, k.a]])
+    return np.asarray(np.linalg.eigvals(a))
+
+
+DEFAULT_SPEEDS_M_S = (0.0, 2.5, 5.0, 7.5, 10.0)
+COMPUTATION_DELAY_TICKS = 1
+
+
+def envelope_row(blocks: LoopBlocks, speed_m_s: float, omega_rad_s: FloatArray = OMEGA_RAD_S) -> EnvelopeRow:
+    """The disk margins of one linearised loop (delay already in ``blocks``): loop at a time at
+    each pitch input and each measured state, and all inputs / all states at once. An unstable
+    closed loop has none (0)."""
+    rho = float(np.max(np.abs(blocks.eigenvalues)))
+    if rho >= 1.0:
+        none = Disk(0.0, math.nan, "-")
+        return EnvelopeRow(speed_m_s, rho, none, none, none, none, none)
+    loop_in, loop_out = blocks.loops(omega_rad_s)
+    ins = [siso_disk(loop_at_a_time(loop_in, i), omega_rad_s, nm) for i, nm in enumerate(PITCH_NAMES)]
+    outs = [siso_disk(loop_at_a_time(loop_out, j), omega_rad_s, nm) for j, nm in enumerate(STATE_NAMES)]
+    return EnvelopeRow(speed_m_s, rho, min(ins, key=lambda d: d.alpha), min(outs, key=lambda d: d.alpha),
+                       simultaneous_disk(loop_in, omega_rad_s, PITCH_NAMES),
+                       simultaneous_disk(loop_out, omega_rad_s, STATE_NAMES),
+                       full_block_disk(loop_in, omega_rad_s, PITCH_NAMES))  # fmt: skip
+
+
+def envelope_margins(
+    make_controller: Callable[[], KernelController[Any]], model: PlantModel, design: Airframe, servos: Servos,
+    *, speeds_m_s: Sequence[float] = DEFAULT_SPEEDS_M_S, delay_ticks: int = COMPUTATION_DELAY_TICKS,
+    gains_name: str = "", servos_name: str = "",
+) -> EnvelopeTable:  # fmt: skip
+    """The table of :func:`envelope_row` over ``speeds_m_s`` (trimmed level flight north), each
+    with ``delay_ticks`` of computation delay; a fresh controller from ``make_controller`` at
+    each speed."""
+    rows = []
+    rate_hz = 100.0
+    for v in speeds_m_s:
+        c = make_controller()
+        rate_hz = 1.0 / c.dt_s
+        try:
+            blocks = delayed(loop_blocks_at(c, model, design, servos, float(v)), delay_ticks)
+        except ValueError:  # no equilibrium: no margins (the row says so)
+            none = Disk(0.0, math.nan, "-")
+            rows.append(EnvelopeRow(float(v), math.nan, none, none, none, none, none))
+            continue
+        rows.append(envelope_row(blocks, float(v)))
+    return EnvelopeTable(gains_name, model.kind, servos_name or "ideal",
+                         delay_ticks, rate_hz, tuple(rows))  # fmt: skip
+
+
+__all__ = ["BreakPoint", "Discrete", "LoopBlocks", "LoopLinearization", "MovingTickMap", "TickMap",
+           "balanced_disk", "build_tick_map_at", "closed_loop_eigenvalues", "delayed", "envelope_margins",
+           "envelope_row", "linearize_loop", "loop_at_a_time", "loop_blocks", "loop_blocks_at",
+           "servo_model"]  # fmt: skip
