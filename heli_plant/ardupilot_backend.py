@@ -18,6 +18,12 @@ design speed whenever the interlock is on; with it off the blades are held at ze
 the rotor makes no thrust (``thrust_coeff`` is odd in the pitch). plant.csv records the rotor
 speed on both.
 
+With a :class:`~heli_plant.ardupilot_can.ArduPilotCanServos` (``--servo-link can``) the servos of
+channels 1-4 and 8 come from the firmware's DroneCAN ArrayCommand instead, read before each
+step (in flight the lockstep is slowed while the newest command is stale: ``CAN_MAX_STALE_S``);
+the frame's PWMs are then only compared with them, frame by frame (:class:`CrossCheck`, in
+the stats).
+
 The clock is the firmware's: this loop only answers; but a ground station streaming on that
 clock may join the lockstep through :mod:`heli_plant.pacer` (the physics waits for it).
 A repeated frame is answered again by
@@ -39,6 +45,8 @@ import numpy as np
 from heli_common.state import N_PITCH, PITCH_LABELS, STATE_NAMES, FloatArray
 from heli_common.vehicle.swashplate import Swashplate
 from heli_common.wire.ardupilot_json import json_state_from_plant
+from heli_plant.ardupilot_can import CHANNELS as CAN_CHANNELS
+from heli_plant.ardupilot_can import ArduPilotCanServos
 from heli_plant.ardupilot_link import ArduPilotJsonLink
 from heli_plant.model import Plant
 from heli_plant.pacer import Pacer
@@ -50,6 +58,38 @@ N_SWASH_CHANNELS = 4  # SERVO1-3 the plate, SERVO4 the tail
 # frames whose readings are remembered: in flight the servos dither over a few microseconds,
 # so the same PWMs recur; emptied when full, which bounds the memory
 READING_CACHE_SIZE = 1024
+# --servo-link can: a bus PWM further than this from the JSON frame's counts as a disagreement
+# (the firmware's pulse is an integer and the float16 command resolves 0.25 us: an equal pulse
+# comes back equal); the larger threshold separates a lagging command from a wrong one
+CROSSCHECK_TOLERANCE_US = 1
+CROSSCHECK_LARGE_US = 25
+# --servo-link can, in flight (the rotor's interlock on): while the newest bus command is more
+# than CAN_MAX_STALE_S of physics time old, each frame waits up to CAN_WAIT_S of wall time for
+# the next before it steps. The firmware asks for 200 Hz (CAN_D1_UC_SRV_RT, 5 ms) but sends
+# from its DroneCAN thread, which needs the CPU, and physics time to pass (its
+# CanardInterface::process(1) runs until 1 ms of the SITL clock has), so blocking until a
+# command comes would deadlock: the lockstep is slowed (one frame per CAN_WAIT_S at most), not
+# stopped. Unpaced, at --speedup 10 on 2 loaded cores, the commands came 75 Hz of physics time
+# on average with gaps of up to 0.65 s, and one set the rotor plant's hover swinging.
+CAN_MAX_STALE_S = 0.02
+CAN_WAIT_S = 0.002
+
+
+@dataclass
+class CrossCheck:
+    """--servo-link can: the bus's PWMs (what the plant flies) against the JSON frame's (what
+    the firmware says it output at the same frame), counted per frame."""
+
+    frames: int = 0  # frames with a bus command held
+    frames_before_command: int = 0  # frames before the first bus command (servos unpowered)
+    disagree_frames: int = 0  # frames where any channel differed by more than the tolerance
+    disagree_large_frames: int = 0  # ... by more than CROSSCHECK_LARGE_US
+    disagree_by_channel: dict[int, int] = field(default_factory=lambda: dict.fromkeys(CAN_CHANNELS, 0))
+    max_abs_diff_us: dict[int, int] = field(default_factory=lambda: dict.fromkeys(CAN_CHANNELS, 0))
+    silent_frames: int = 0  # frames stepped while the bus was silent (the last command held)
+    rotor_on_s: float = 0.0  # physics time with the rotor's interlock on (in flight) ...
+    rotor_on_commands: int = 0  # ... and the bus commands applied in it
+    rotor_on_max_stale_s: float = 0.0  # the oldest the held command was at a step, rotor on
 
 
 @dataclass
@@ -64,6 +104,8 @@ class BackendStats:
     interlock_changes: int = 0
     t_s: float = 0.0
     link: dict[str, object] = field(default_factory=dict)
+    crosscheck: CrossCheck | None = None  # --servo-link can only
+    can: dict[str, object] = field(default_factory=dict)  # the bus reader's counts at the end
 
 
 class ArduPilotBackend:
@@ -80,6 +122,8 @@ class ArduPilotBackend:
         link: ArduPilotJsonLink,
         record: IO[str] | None = None,
         pacer: Pacer | None = None,
+        can: ArduPilotCanServos | None = None,
+        can_max_stale_s: float | None = CAN_MAX_STALE_S,
     ) -> None:
         self._make_plant = make_plant
         self.plant: Plant = make_plant()
@@ -87,6 +131,16 @@ class ArduPilotBackend:
         self.link = link
         self.pacer = pacer  # a ground station in the lockstep (heli_plant.pacer), if any
         self.stats = BackendStats()
+        # --servo-link can: the servos come from the bus, the JSON frame's PWMs are only checked
+        self.can = can
+        self.can_max_stale_s = can_max_stale_s  # None: never wait for the bus
+        self._applied_before = 0
+        self._last_dt_s = 0.0
+        if can is not None:
+            self.stats.crosscheck = CrossCheck()
+            # before the first command the servos are unpowered: at trim, the rotor's at its minimum
+            self._unpowered = {ch: round(r.min_us if ch == CHANNEL_RSC else r.trim_us)
+                               for ch, r in can.ranges.items() if ch in CAN_CHANNELS}  # fmt: skip
         self.t_s = 0.0  # the physics time the firmware was last told
         self._interlock = False
         self._writer = None if record is None else csv.writer(record)
@@ -127,10 +181,57 @@ class ArduPilotBackend:
             self._interlock = interlock
         return pitches
 
+    def servo_pwm(self, frame_pwm_us: tuple[int, ...]) -> tuple[int, ...]:
+        """The PWMs the plant's servos fly: the frame's, or (--servo-link can) the bus's for
+        the channels it carries, the frame's then only checked against them."""
+        if self.can is None:
+            return frame_pwm_us
+        can = self.can
+        bus = can.poll(self.t_s)
+        last = can.stats.last_command_s
+        # paced only while the rotor is engaged (flying): on the ground, disarmed, the firmware's
+        # start-up (EKF, arming) runs at the pace it has over JSON
+        if bus is not None and last is not None and self.can_max_stale_s is not None and self._interlock:
+            stale = self.t_s - last
+            if self.can_max_stale_s < stale <= can.timeout_s:  # past the timeout: a silent bus, step on
+                can.wait_for_command(self.t_s, CAN_WAIT_S)
+                bus = can.pwm_us()
+        cc = self.stats.crosscheck
+        assert cc is not None
+        out = list(frame_pwm_us)
+        if bus is None:
+            cc.frames_before_command += 1
+            for ch, v in self._unpowered.items():
+                out[ch - 1] = v
+            return tuple(out)
+        cc.frames += 1
+        cc.silent_frames += can.silent(self.t_s)
+        applied = can.stats.counts["commands_applied"]
+        if self._interlock:
+            cc.rotor_on_s += self._last_dt_s
+            cc.rotor_on_commands += applied - self._applied_before
+            held_since = can.stats.last_command_s
+            if held_since is not None:
+                cc.rotor_on_max_stale_s = max(cc.rotor_on_max_stale_s, self.t_s - held_since)
+        self._applied_before = applied
+        worst = 0
+        for ch, v in bus.items():
+            diff = abs(v - frame_pwm_us[ch - 1])
+            if diff > CROSSCHECK_TOLERANCE_US:
+                cc.disagree_by_channel[ch] += 1
+            if diff > cc.max_abs_diff_us[ch]:
+                cc.max_abs_diff_us[ch] = diff
+            worst = max(worst, diff)
+            out[ch - 1] = v
+        cc.disagree_frames += worst > CROSSCHECK_TOLERANCE_US
+        cc.disagree_large_frames += worst > CROSSCHECK_LARGE_US
+        return tuple(out)
+
     def step(self, pwm_us: tuple[int, ...], dt_s: float) -> bytes:
         """One frame: hold the pitches, step ``dt_s``, return the answer."""
         p = self.plant
-        p.set_pitches(self.pitches_for(pwm_us))
+        self._last_dt_s = dt_s
+        p.set_pitches(self.pitches_for(self.servo_pwm(pwm_us)))
         x0 = p.x.copy()
         x1 = p.step(dt_s)
         f = specific_force_over_step(x0, x1, dt_s, p.constants.gravity_m_s2)
@@ -165,6 +266,8 @@ class ArduPilotBackend:
         self.stats.link["refused"] = dict(vars(self.link.counters.refused))
         if self.pacer is not None:
             self.stats.link["pacer"] = dict(vars(self.pacer.counts))
+        if self.can is not None:
+            self.stats.can = self.can.stats.as_dict()
         return self.stats
 
 

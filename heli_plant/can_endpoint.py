@@ -36,6 +36,20 @@ keeps holding the last pitches, as the MAVLink path does; what to do about a sil
 is the plant process's decision. Each entry into silence is counted (``timeouts``) and
 logged, as is the recovery.
 
+The servos are a DroneCAN node too (``node_id``, 20 by default; None: a silent
+listener), as the field's tools expect of one (:mod:`heli_common.wire.can.node`): at the
+end of each ``poll`` it sends ``uavcan.protocol.NodeStatus`` when one is due (1 Hz of
+``now_s``; health WARNING while the command stream is silent), and
+``uavcan.equipment.actuator.Status`` for each servo every ``actuator_status_period_s``
+(10 Hz of ``now_s``): ``actuator_id``, ``position`` = the pitch the servo holds [rad]
+(the last command applied; NaN before the first), ``force`` and ``speed`` NaN and
+``power_rating_pct`` 127 (unknown: the plant's servo model, when a world has one, is
+not read here, so the lag of ``--world servos-*`` is not in the feedback). It answers
+``uavcan.protocol.GetNodeInfo`` (name ``org.heli-tlc-sitl.servos``) in the poll that
+reads the request. Frames from its own node id (a bus that loops them back) are skipped.
+What it sends and skips is counted in ``node_stats``, apart from ``stats`` (the command
+path's). A send the bus refuses is counted and logged, never raised.
+
 No clock is read for any decision: times come in as ``now_s``. Only ``poll(wait_s=...)``
 reads the monotonic clock, to bound how long it blocks waiting for a command.
 """
@@ -49,26 +63,40 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+import can
 import numpy as np
 
 from heli_common.closing import Closing
 from heli_common.ratelog import RateLimitedLog
 from heli_common.state import N_PITCH, PITCH_NAMES, FloatArray
 from heli_common.vehicle.airframe import PitchLimits
-from heli_common.wire.can.bus import CanBus, CanBusConfig, CanBusError, open_bus
+from heli_common.wire.can.bus import CanBus, CanBusConfig, CanBusError, CanSendError, open_bus
 from heli_common.wire.can.dronecan_codec import (
     ARMING_STATUS_DTID,
     ARMING_STATUS_FULL,
     ARRAY_COMMAND_DTID,
     COMMAND_TYPE_POSITION,
     DEFAULT_ACTUATOR_IDS,
+    HEALTH_OK,
+    HEALTH_WARNING,
+    MODE_OPERATIONAL,
     NODE_STATUS_DTID,
+    CanFrame,
     DropReason,
+    NodeStatusEncoder,
     Reassembler,
     ReceivedTransfer,
     array_command_entries,
     check_actuator_ids,
     check_node_id,
+)
+from heli_common.wire.can.node import (
+    ActuatorStatusEncoder,
+    NodeIdentity,
+    NodeInfoResponder,
+    frame_source,
+    get_node_info_request,
+    project_version,
 )
 from heli_plant.model import accept_pitches
 
@@ -79,6 +107,20 @@ DEFAULT_TIMEOUT_S = 0.1
 LOCKSTEP_SPIN_S = 0.002  # a lockstep wait polls this long before it sleeps
 #: one float16 step (2**-10 relative): the margin past a limit still taken as rounding
 LIMIT_TOLERANCE_REL = 2.0**-10
+#: the servos' node id (the autopilot's is 10) and name
+DEFAULT_PLANT_NODE_ID = 20
+SERVOS_NODE_NAME = "org.heli-tlc-sitl.servos"
+NODE_STATUS_PERIOD_S = 1.0
+#: uavcan.equipment.actuator.Status per servo: 10 Hz, 8 frames (4 servos x 2) a publication
+ACTUATOR_STATUS_PERIOD_S = 0.1
+
+NODE_STAT_KEYS = (
+    "own_frames",  # frames of this node's id read back from the bus: skipped
+    "node_status_sent",
+    "actuator_status_sent",  # publications (one Status per servo each)
+    "node_info_answered",
+    "send_errors",  # transfers of this node the bus refused (cut short)
+)
 
 STAT_KEYS = (
     "frames_rx",  # CAN frames read from the bus
@@ -128,6 +170,8 @@ class CanServoEndpoint(Closing):
         source_node_id: int | None = None,
         max_frames_per_poll: int = 1000,
         log_interval_s: float = 1.0,
+        node_id: int | None = DEFAULT_PLANT_NODE_ID,
+        actuator_status_period_s: float = ACTUATOR_STATUS_PERIOD_S,
     ) -> None:
         if not (math.isfinite(timeout_s) and timeout_s > 0.0):
             raise ValueError(f"timeout_s must be a positive number, got {timeout_s}")
@@ -154,6 +198,21 @@ class CanServoEndpoint(Closing):
         self._reassembler = Reassembler((ARRAY_COMMAND_DTID, NODE_STATUS_DTID, ARMING_STATUS_DTID),
                                         self._on_drop)  # fmt: skip
         self.armed = False  # the autopilot's latest uavcan.equipment.safety.ArmingStatus
+
+        if not (math.isfinite(actuator_status_period_s) and actuator_status_period_s > 0.0):
+            raise ValueError("actuator_status_period_s must be a positive number")
+        self.node_id = None if node_id is None else check_node_id(node_id)
+        if self.node_id is not None and self.node_id == self.source_node_id:
+            raise ValueError(f"the servos' node id {node_id} is the autopilot's (source_node_id)")
+        self.node_stats: dict[str, int] = dict.fromkeys(NODE_STAT_KEYS, 0)
+        self.actuator_status_period_s = float(actuator_status_period_s)
+        self._next_node_status_s: float | None = None
+        self._next_actuator_status_s: float | None = None
+        if self.node_id is not None:
+            self._node_status = NodeStatusEncoder(self.node_id)
+            self._actuator_status = ActuatorStatusEncoder(self.node_id)
+            identity = NodeIdentity(SERVOS_NODE_NAME, project_version())
+            self.node_info = NodeInfoResponder(self.node_id, identity)
 
         # load (or compile) the numba gate now: the first command must not stall the
         # receiver for seconds while frames pile up in the bus's queue
@@ -206,6 +265,8 @@ class CanServoEndpoint(Closing):
                     continue
                 break
             frames += 1
+            if self.node_id is not None and msg.is_extended_id and self._node_frame(msg, now_s):
+                continue
             self.stats["frames_rx"] += 1
             received = self._reassembler.feed_message(msg)
             if received is not None:
@@ -218,6 +279,8 @@ class CanServoEndpoint(Closing):
                 self.max_frames_per_poll,
             )  # fmt: skip
         self._update_silence(now_s)
+        if self.node_id is not None:
+            self._publish(now_s)
         return None if self.held is None else self.held.copy()
 
     def silent(self, now_s: float) -> bool:
@@ -229,7 +292,62 @@ class CanServoEndpoint(Closing):
         if self._owns_bus:
             self.bus.close()
 
+    # --------------------------------------------------------------------- the node
 
+    def _node_frame(self, msg: can.Message, now_s: float) -> bool:
+        """Handle a frame that is this node's business: True if it was (its own frame read
+        back, a GetNodeInfo request for it), False for the command path."""
+        can_id = msg.arbitration_id
+        if frame_source(can_id) == self.node_id:
+            self.node_stats["own_frames"] += 1
+            return True
+        assert self.node_id is not None
+        req = get_node_info_request(can_id, bytes(msg.data), self.node_id)
+        if req is None:
+            return False
+        self.stats["frames_rx"] += 1
+        frames = self.node_info.respond(req, self._uptime_s(now_s), health=self._health(now_s))
+        if self._send_node(frames, "GetNodeInfo response", now_s):
+            self.node_stats["node_info_answered"] += 1
+        return True
+
+    def _uptime_s(self, now_s: float) -> int:
+        return int(now_s - (self.first_poll_s if self.first_poll_s is not None else now_s))
+
+    def _health(self, now_s: float) -> int:
+        return HEALTH_WARNING if self.silent(now_s) else HEALTH_OK
+
+    def _publish(self, now_s: float) -> None:
+        """NodeStatus and the servos' Status when due (grids of ``now_s`` that restart
+        after a gap instead of bursting)."""
+        if self._next_node_status_s is None or now_s >= self._next_node_status_s:
+            frames = self._node_status.encode(self._uptime_s(now_s), health=self._health(now_s),
+                                              mode=MODE_OPERATIONAL)  # fmt: skip
+            if self._send_node(frames, "NodeStatus", now_s):
+                self.node_stats["node_status_sent"] += 1
+            self._next_node_status_s = _next_on_grid(self._next_node_status_s, now_s, NODE_STATUS_PERIOD_S)
+        if self._next_actuator_status_s is None or now_s >= self._next_actuator_status_s:
+            held = self.held if self.held is not None else np.full(N_PITCH, math.nan)
+            frames = self._actuator_status.encode_all(self.actuator_ids, held.tolist())
+            if self._send_node(frames, "actuator Status", now_s):
+                self.node_stats["actuator_status_sent"] += 1
+            self._next_actuator_status_s = _next_on_grid(
+                self._next_actuator_status_s, now_s, self.actuator_status_period_s
+            )
+
+    def _send_node(self, frames: list[CanFrame], what: str, now_s: float) -> bool:
+        for f in frames:
+            try:
+                self.bus.send(f.can_id, f.data)
+            except CanSendError as exc:
+                self.node_stats["send_errors"] += 1
+                self._log(
+                    logging.WARNING, "node_send", now_s,
+                    "CAN servo node: %s not sent (%s); %d so far",
+                    what, exc, self.node_stats["send_errors"],
+                )  # fmt: skip
+                return False
+        return True
 
     # --------------------------------------------------------------------- internals
 
@@ -339,3 +457,8 @@ class CanServoEndpoint(Closing):
         elif self._silent and not silent:
             log.info("CAN servo: valid commands again after a timeout")
         self._silent = silent
+
+
+def _next_on_grid(prev: float | None, now_s: float, period_s: float) -> float:
+    nxt = (prev if prev is not None else now_s) + period_s
+    return nxt if nxt > now_s else now_s + period_s

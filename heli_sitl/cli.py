@@ -218,6 +218,8 @@ def _margins(args: argparse.Namespace) -> int:
     pid = PidGains.load(args.gains or "gains_pid.toml") if args.controller == "pid" else None
     if args.loops:
         return _loop_margins(args, scenario, pid)
+    if args.envelope or args.speed_m_s or args.out:
+        return _envelope_margins(args, scenario, pid)
     design = (pid or scenario.gains).design
     if args.design and (args.plant or args.servos):
         raise UsageError("--design checks the gain file's [design] plant and servos: no --plant, --servos")
@@ -241,6 +243,50 @@ def _margins(args: argparse.Namespace) -> int:
         verdict = f"passes {limit} at every break point" if ok else f"FAILS: unstable or below {limit}"
         print(f"# design point ({design.plant} plant, servos {design.servos}): {verdict}")
         return 0 if ok else 1
+    return 0
+
+
+def _envelope_margins(args: argparse.Namespace, scenario: Scenario, pid: PidGains | None) -> int:
+    """``heli-sitl margins --envelope``: the closed loop linearised in trimmed level flight at each
+    speed, a computation delay in it; disk margins loop at a time and all at once
+    (heli_sitl/engine/loop_linear.py, autopilot/analysis/envelope_margins.py)."""
+    from autopilot.analysis.envelope_margins import envelope_csv
+    from autopilot.controllers import build_kernel_controller
+    from heli_common.vehicle.plant_model import PlantModel
+    from heli_sitl.engine.loop_linear import DEFAULT_SPEEDS_M_S, envelope_margins, servo_model
+
+    if args.design or args.all:
+        raise UsageError("--envelope takes the gain file's design plant and servos unless --plant, --servos "
+                         "name others: no --design, --all")  # fmt: skip
+    if args.delay_ticks < 0:
+        raise UsageError("--delay-ticks must be >= 0")
+    design = (pid or scenario.gains).design
+    speeds = args.speed_m_s or list(DEFAULT_SPEEDS_M_S)
+    if any(not (0.0 <= v <= 30.0) for v in speeds):
+        raise UsageError("--speed-m-s: level-flight speeds from 0 to 30 m/s")
+    gains_name = args.gains or ("gains_pid.toml" if pid is not None else scenario.gains.name)
+    tables = []
+    for plant in args.plant or [design.plant]:
+        model = PlantModel.load(plant)
+        for servos in args.servos or [design.servos]:
+            name, sv = servo_model(servos)
+
+            def make() -> Any:
+                return build_kernel_controller(args.controller, scenario.airframe, scenario.gains,
+                                               scenario.run.rate_hz, pid_gains=pid)  # fmt: skip
+
+            t = envelope_margins(make, model, scenario.airframe, sv, speeds_m_s=speeds,
+                                 delay_ticks=args.delay_ticks, gains_name=gains_name,
+                                 servos_name=name)  # fmt: skip
+            tables.append(t)
+            print(t.markdown())
+            print()
+    if args.out:
+        out = Path(args.out)
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "margins_envelope.csv").write_text(envelope_csv(tables))
+        (out / "margins_envelope.md").write_text("\n\n".join(t.markdown() for t in tables) + "\n")
+        print(f"wrote {out / 'margins_envelope.csv'} and {out / 'margins_envelope.md'}")
     return 0
 
 
@@ -278,7 +324,9 @@ def _compare(args: argparse.Namespace) -> int:
 
 def _run_ardupilot_json(args: argparse.Namespace) -> int:
     """``heli-sitl run --backend ardupilot-json``: the plant as ArduPilot SITL's external
-    physics (``--model JSON``), listening on UDP 9002 + 10 N (docs/ardupilot-json.md)."""
+    physics (``--model JSON``), listening on UDP 9002 + 10 N (docs/ardupilot-json.md); with
+    ``--servo-link can`` its servos take ArduPilot's DroneCAN commands (docs/can.md)."""
+    import dataclasses
     import threading
 
     from heli_common.vehicle.plant_model import PlantModel
@@ -306,20 +354,39 @@ def _run_ardupilot_json(args: argparse.Namespace) -> int:
         return Plant(airframe, x0, substeps=args.plant_substeps, world=world, step_s=1.0 / 1200.0, home=home,
                      model=model, rotor_at_rest=not args.in_air)  # fmt: skip
 
+    can = None
+    if args.servo_link == "can":  # the servos from ArduPilot's DroneCAN ArrayCommand (docs/can.md)
+        from heli_plant.ardupilot_can import ArduPilotCanServos, servo_ranges
+        from heli_sitl.launch.ardupilot import can_parm_files
+
+        parms = args.ardupilot_parms.split(",") if args.ardupilot_parms else can_parm_files(args.plant)
+        try:
+            can = ArduPilotCanServos(args.can_bus or "mcast:0", servo_ranges(parms))
+        except (ConfigError, ValueError) as exc:
+            raise UsageError(f"--servo-link can: {exc}") from None
+    elif args.servo_link not in (None, "mavlink"):
+        raise UsageError(f"--backend ardupilot-json: no servo link {args.servo_link!r}")
     try:
         link = ArduPilotJsonLink(port)
         pacer = Pacer(port + PACE_PORT_OFFSET)
     except PortBusyError as exc:
+        if can is not None:
+            can.close()
         print(f"heli-sitl: {exc.strerror}", file=sys.stderr)
         return Exit.PORT_BUSY
     with link, pacer:
         try:
-            stats = ArduPilotBackend(make_plant, swash, link, record, pacer).run(stop, args.duration_s)
+            stats = ArduPilotBackend(make_plant, swash, link, record, pacer, can).run(stop, args.duration_s)
         finally:
             if record is not None:
                 record.close()
+            if can is not None:
+                can.close()
+    summary = json.dumps(dataclasses.asdict(stats), default=str)
+    if args.out:  # the counts, the CAN cross-check's among them, beside plant.csv
+        (Path(args.out) / "plant-stats.json").write_text(summary + "\n")
     if args.verbose:
-        print(json.dumps(vars(stats), default=str), file=sys.stderr)
+        print(summary, file=sys.stderr)
     return 0
 
 
@@ -402,13 +469,17 @@ def _run(args: argparse.Namespace) -> int:
 def _up_ardupilot(args: argparse.Namespace) -> int:
     from heli_sitl.launch import ardupilot
 
+    can = args.servo_link == "can"
+    if args.can_bus is not None and not can:
+        raise UsageError("--can-bus: only with --servo-link can")
     try:
-        firmware = ardupilot.find_firmware(args.ardupilot_bin)
+        firmware = ardupilot.find_firmware(args.ardupilot_bin, can=can)
     except ardupilot.FirmwareNotFoundError as exc:
         raise UsageError(str(exc)) from exc
     opts = ardupilot.ArduPilotOptions(
         firmware=firmware, instance=args.instance, plant=args.plant, world=args.world, scenario=args.scenario,
         home=args.home, speedup=args.speedup, out=Path(args.out or "out/ardupilot"),
+        servo_link="can" if can else "json", can_bus=args.can_bus or "mcast:0",
     )  # fmt: skip
     try:
         ardupilot.serve(opts)
@@ -425,6 +496,9 @@ def _up(args: argparse.Namespace) -> int:
     terminate_on_sigterm()
     if args.firmware == "ardupilot":
         return _up_ardupilot(args)
+    if args.servo_link is not None or args.can_bus is not None:
+        raise UsageError("up: --servo-link/--can-bus are for --firmware ardupilot; the bench's own "
+                         "servo link is configs/links.toml's [servo] (or demo --servo-link)")
     arg.resolve_instance(args, {"gcs_port": "gcs", "api_port": "api", "local_gcs_port": "local_gcs",
                                 "local_api_port": "local_api"})  # fmt: skip
     opts = UpOptions(
@@ -541,6 +615,61 @@ def controller_arg(value: str) -> str:
     return check(value)
 
 
+def _is_listed(type_name: str, types: list[str]) -> bool:
+    """``--type``: the full DroneCAN name, or its last parts (``actuator.ArrayCommand``)."""
+    return any(type_name == t or type_name.endswith("." + t) for t in types)
+
+
+def _can_monitor(args: argparse.Namespace) -> int:
+    """``heli-sitl can monitor [BUS]``: every DroneCAN transfer on the bus, one line each."""
+    import threading
+    import time
+
+    from heli_common.wire.can.bus import CanBusError, open_bus, parse_bus_spec
+    from heli_common.wire.can.monitor import TransferMonitor, frame_line, transfer_line
+
+    try:
+        config = parse_bus_spec(args.bus)
+    except ValueError as exc:
+        raise UsageError(f"can monitor: {exc}") from None
+    stop = threading.Event()
+    stop_on_signals(stop)
+    try:
+        bus = open_bus(config)
+    except CanBusError as exc:
+        print(f"heli-sitl can monitor: {exc}", file=sys.stderr)
+        return Exit.FAILURE
+    name = config.describe()
+    mon = TransferMonitor()
+    printed = 0
+    t0 = time.time()
+    deadline = None if args.duration_s is None else time.monotonic() + args.duration_s
+    print(f"heli-sitl can monitor: listening on {name} (Ctrl-C to stop)", file=sys.stderr, flush=True)
+    with bus:
+        while not stop.is_set() and (args.count is None or printed < args.count):
+            wait = 0.2
+            if deadline is not None:
+                wait = min(wait, deadline - time.monotonic())
+                if wait <= 0.0:
+                    break
+            try:
+                msg = bus.recv(wait)
+            except CanBusError as exc:
+                print(f"heli-sitl can monitor: {exc}", file=sys.stderr)
+                return Exit.FAILURE
+            if msg is None:
+                continue
+            if args.frames:
+                print(frame_line(msg, name, t0), flush=True)
+            tr = mon.feed(msg)
+            if tr is not None and (not args.types or _is_listed(tr.type_name, args.types)):
+                print(transfer_line(tr, t0), flush=True)
+                printed += 1
+    print(f"heli-sitl can monitor: {mon.frames} frames, {mon.transfers} transfers, {mon.errors} "
+          f"undecodable, {mon.skipped} not DroneCAN", file=sys.stderr)  # fmt: skip
+    return Exit.OK
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="heli-sitl", description=__doc__)
     sub = p.add_subparsers(dest="cmd", required=True)
@@ -592,7 +721,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="ardupilot-json: the head between the servos and the blades (docs/swashplate.md)")
     r.add_argument("--in-air", action="store_true",
                    help="ardupilot-json: start at the scenario's initial state (default: on the ground)")
-    r.add_argument("--out", default=None, help="ardupilot-json: write plant.csv (the truth, 100 Hz) here")
+    r.add_argument("--out", default=None,
+                   help="ardupilot-json: write plant.csv (the truth, 100 Hz) and plant-stats.json here")
+    r.add_argument("--ardupilot-parms", default=None, metavar="FILE[,FILE...]",
+                   help="ardupilot-json with --servo-link can: the firmware's parameter files, in load "
+                        "order, for SERVOn_MIN/TRIM/MAX (default: those `up --firmware ardupilot` gives it)")
     r.add_argument("-v", "--verbose", action="store_true")
     r.set_defaults(func=_run)
 
@@ -625,6 +758,13 @@ def build_parser() -> argparse.ArgumentParser:
     u.add_argument("--ardupilot-bin", default=None, metavar="PATH",
                    help="the arducopter-heli SITL binary (default: $ARDUPILOT_HELI_BIN)")
     u.add_argument("--speedup", type=arg.positive, default=1.0, help="ardupilot: SITL's --speedup")
+    u.add_argument("--servo-link", choices=("json", "can"), default=None,
+                   help="ardupilot: where the plant takes the servos from: json (default), the JSON "
+                        "frame's PWMs; can, ArduPilot's DroneCAN ArrayCommand (the firmware built with "
+                        "DroneCAN: arducopter-heli-can; docs/can.md)")
+    u.add_argument("--can-bus", default=None,
+                   help="ardupilot --servo-link can: the bus the plant listens on (default mcast:0, the "
+                        "firmware's CAN bus 1)")
     u.add_argument("--home", default=f"{HOME.lat_deg},{HOME.lon_deg},{HOME.alt_amsl_m}",
                    help="ardupilot: lat,lon,alt of home")
     u.set_defaults(func=_up)
@@ -637,7 +777,10 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--autostart", action="store_true",
                    help="the autopilot starts the scenario itself (no ground script process)")
     d.add_argument("--servo-link", choices=("mavlink", "can"), default=None)
-    d.add_argument("--can-bus", default=None, help="python-can bus spec for --servo-link can")
+    d.add_argument("--can-bus", default=None,
+                   help="CAN bus spec for --servo-link can: mcast[:N] (DroneCAN's UDP multicast; the "
+                        "links config's default mcast:0), virtual[:ch], udp_multicast[:group[:port]], "
+                        "socketcan[:iface]")
     d.add_argument("--out", required=True)
     d.add_argument("--world", default=None, metavar="FILE|PRESET", help=WORLD_HELP)
     d.add_argument("--plant", default="paper", metavar="paper|gavrilets|FILE", help=PLANT_HELP)
@@ -704,6 +847,16 @@ def build_parser() -> argparse.ArgumentParser:
     mg.add_argument("--loops", action="store_true",
                     help="loop at a time instead: each loop and channel opened alone (crossover, phase, gain "
                          "and delay margins) behind the servo models ideal, default and sloppy")  # fmt: skip
+    mg.add_argument("--envelope", action="store_true",
+                    help="over the envelope instead: trimmed level flight at each --speed-m-s, a computation "
+                         "delay in the loop, margins loop at a time and all inputs / all states at once")
+    mg.add_argument("--speed-m-s", type=float, action="append", default=None,
+                    help="level-flight speed for --envelope (repeat; default 0 2.5 5 7.5 10; "
+                         "implies --envelope)")
+    mg.add_argument("--delay-ticks", type=int, default=1,
+                    help="--envelope: control ticks of computation delay in the loop (default 1)")
+    mg.add_argument("--out", default=None, metavar="DIR",
+                    help="--envelope: write DIR/margins_envelope.csv and .md (implies --envelope)")
     mg.set_defaults(func=_margins)
 
     c = sub.add_parser("campaign", help="fly a campaign of flights in-process on Dask; Parquet, figures")
@@ -723,6 +876,22 @@ def build_parser() -> argparse.ArgumentParser:
                         "a re-run over --out draws them")
     c.add_argument("--quiet", action="store_true", help="no progress bar, no table")
     c.set_defaults(func=_campaign)
+
+    cb = sub.add_parser("can", help="DroneCAN tools: monitor a bus (docs/can.md)")
+    can_sub = cb.add_subparsers(dest="can_cmd", required=True)
+    cm = can_sub.add_parser("monitor", help="list a CAN bus live, decoded as DroneCAN (like candump)")
+    cm.add_argument("bus", nargs="?", default="mcast:0",
+                    help="bus spec: mcast[:N] (DroneCAN's UDP multicast, default mcast:0), virtual[:ch], "
+                         "udp_multicast[:group[:port]], socketcan[:iface]")
+    cm.add_argument("--type", dest="types", action="append", default=[], metavar="NAME",
+                    help="list only this DroneCAN type (full name, or its last parts: ArrayCommand); "
+                         "repeat for more")
+    cm.add_argument("--count", type=arg.count, default=None, metavar="N",
+                    help="stop after N listed transfers")
+    cm.add_argument("--duration", dest="duration_s", type=arg.positive, default=None, metavar="S",
+                    help="stop after S seconds")
+    cm.add_argument("--frames", action="store_true", help="also list every frame (id, length, bytes)")
+    cm.set_defaults(func=_can_monitor)
     return p
 
 

@@ -448,6 +448,8 @@ def test_bus_that_raises_is_counted_not_fatal(caplog: pytest.LogCaptureFixture) 
         ep = CanServoEndpoint(bus, limits=LIMITS, timeout_s=0.1)
         assert ep.poll(0.0) is None and ep.poll(0.2) is None
         assert ep.stats["bus_errors"] == 2 and ep.silent(0.2)
+        # the servos' node: NodeStatus and Status at 0 s, Status at 0.2 s, refused and counted
+        assert ep.node_stats["send_errors"] == 3 and ep.node_stats["node_status_sent"] == 0
         assert "CAN servo: receive failed" in caplog.text
         tx.close()
         ep.close()

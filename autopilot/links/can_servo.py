@@ -3,8 +3,15 @@
 :class:`CanServoSender` sends the four pitches (theta_m, theta_t, eps, eta [rad]) as one
 ``uavcan.equipment.actuator.ArrayCommand`` per ``send`` call, one
 ``COMMAND_TYPE_POSITION`` command per servo (actuator ids 1..4 by default), and a
-``uavcan.protocol.NodeStatus`` once per ``status_period_s`` of the *given* time (1 Hz).
-It reads no clock: the runner passes the tick time. A frame the bus refuses (full queue,
+``uavcan.protocol.NodeStatus`` once per ``status_period_s`` of the *given* time (1 Hz),
+and answers ``uavcan.protocol.GetNodeInfo`` (name ``org.heli-tlc-sitl.autopilot``, the
+project's version, a unique id: :mod:`heli_common.wire.can.node`), so the DroneCAN GUI
+tool and ArduPilot list it as a node. Requests are read on each ``send``, at most
+``RX_PER_SEND`` frames (every frame waiting, at a tick's traffic): a request is answered
+in the tick it arrives. Not on ``udp_multicast``, where this node hears its own three
+frames a tick and reading them back (msgpack) would cost more than sending them: that bus
+is no DroneCAN tool's anyway (``mcast:N`` is). It reads no clock: the runner passes the
+tick time. A frame the bus refuses (full queue,
 interface down, driver error) is counted, logged (at most once a second) and the rest of
 that transfer is not sent (a receiver would drop a partial transfer anyway); the next
 tick sends the next command. Encoding is dronecan's (see
@@ -41,16 +48,22 @@ from heli_common.wire.can.dronecan_codec import (
     CanFrame,
     NodeStatusEncoder,
 )
+from heli_common.wire.can.node import (
+    NodeIdentity,
+    NodeInfoResponder,
+    get_node_info_request,
+    project_version,
+)
 
 log = logging.getLogger(__name__)
 
 #: ArduPilot's default node id for the autopilot; any 1..127 works
 DEFAULT_NODE_ID = 10
-#: frames read and discarded per send on a python-can ``virtual`` bus, whose receive queue
-#: is unbounded: the sender listens to nobody, and a shared bus must not grow its queue.
-#: udp_multicast (where it hears its own frames) and socketcan queue in a kernel socket
-#: buffer that is bounded and drops the oldest traffic by itself: nothing to drain there.
-RX_DRAIN_PER_SEND = 16
+#: frames read per send, for GetNodeInfo requests; the rest are discarded (a ``virtual``
+#: bus's receive queue is unbounded: a shared bus must not grow it). A tick's traffic on
+#: the bus is a few frames; the plant's servo status adds 80 a second.
+RX_PER_SEND = 32
+AUTOPILOT_NODE_NAME = "org.heli-tlc-sitl.autopilot"
 
 SENDER_STAT_KEYS = (
     "commands_sent",  # ArrayCommand transfers fully sent
@@ -62,6 +75,8 @@ SENDER_STAT_KEYS = (
     "rx_discarded",  # frames drained from this node's own receive queue
     "rx_errors",
     "arming_status_sent",  # uavcan.equipment.safety.ArmingStatus, on change and at 2 Hz
+    "node_info_answered",  # uavcan.protocol.GetNodeInfo requests answered
+    "node_info_errors",  # answers cut short by a bus error
 )
 ARMING_STATUS_PERIOD_S = 0.5
 
@@ -102,7 +117,10 @@ class CanServoSender(Closing):
         self._log = RateLimitedLog(log, log_interval_s)
         self._owns_bus = not isinstance(bus, CanBus)
         self.bus = bus if isinstance(bus, CanBus) else open_bus(bus)
-        self._drains = self.bus.config.interface == "virtual"
+        self._listens = self.bus.config.interface != "udp_multicast"
+        self.identity = NodeIdentity(AUTOPILOT_NODE_NAME, project_version())
+        self.node_info = NodeInfoResponder(node_id, self.identity)
+        self._health = HEALTH_OK
 
     def send(self, pitches_rad: npt.ArrayLike, t_s: float, armed: bool | None = None) -> bool:
         """Send this tick's pitches [rad] (and NodeStatus when due; ArmingStatus, when
@@ -113,8 +131,8 @@ class CanServoSender(Closing):
             raise ValueError(f"need {N_PITCH} pitches, got shape {np.shape(pitches_rad)}")
         if self.start_s is None:
             self.start_s = t_s
-        if self._drains:
-            self._drain(t_s)
+        if self._listens:
+            self._listen(t_s)
         if armed is not None and (armed != self._armed_sent or t_s >= self._next_arming_s):
             if self._send_frames(self.arming.encode(armed), "ArmingStatus", "send_errors", t_s):
                 self.stats["arming_status_sent"] += 1
@@ -142,12 +160,11 @@ class CanServoSender(Closing):
         if self._owns_bus:
             self.bus.close()
 
-
-
     def _send_status(self, t_s: float) -> None:
         # uptime counts from start_s; health shows whether commands failed since the last one
         uptime_s = int(t_s - (self.start_s if self.start_s is not None else t_s))
         health = HEALTH_WARNING if self._errors_since_status else HEALTH_OK
+        self._health = health
         frames = self.status.encode(uptime_s, health=health, mode=MODE_OPERATIONAL)
         if self._send_frames(frames, "NodeStatus", "node_status_errors", t_s):
             self.stats["node_status_sent"] += 1
@@ -172,8 +189,9 @@ class CanServoSender(Closing):
             self.stats["frames_sent"] += 1
         return True
 
-    def _drain(self, t_s: float) -> None:
-        for _ in range(RX_DRAIN_PER_SEND):
+    def _listen(self, t_s: float) -> None:
+        """Answer the GetNodeInfo requests waiting; discard every other frame."""
+        for _ in range(RX_PER_SEND):
             try:
                 msg = self.bus.recv(0.0)
             except Exception as exc:
@@ -183,7 +201,16 @@ class CanServoSender(Closing):
                 return
             if msg is None:
                 return
-            self.stats["rx_discarded"] += 1
+            req = None
+            if msg.is_extended_id and not msg.is_remote_frame and not msg.is_error_frame:
+                req = get_node_info_request(msg.arbitration_id, bytes(msg.data), self.node_id)
+            if req is None:
+                self.stats["rx_discarded"] += 1
+                continue
+            uptime_s = int(t_s - (self.start_s if self.start_s is not None else t_s))
+            frames = self.node_info.respond(req, uptime_s, health=self._health, mode=MODE_OPERATIONAL)
+            if self._send_frames(frames, "GetNodeInfo response", "node_info_errors", t_s):
+                self.stats["node_info_answered"] += 1
 
 
 class CanServoOutput:

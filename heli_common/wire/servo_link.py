@@ -22,8 +22,10 @@ DEFAULT_SWASHPLATE = "swashplate/xcell60-h3-120.toml"
 @dataclass(frozen=True)
 class ServoLinkConfig:
     link: str = spec(choices=("mavlink", "can"), default="mavlink")
-    # python-can bus: "virtual[:channel]", "udp_multicast[:group[:port]]", "socketcan[:iface]"
-    can_bus: str = spec(default="udp_multicast")
+    # bus spec: "mcast[:N]" (DroneCAN's UDP multicast, bus N: what ArduPilot SITL, AP_Periph,
+    # libcanard and pydronecan / the DroneCAN GUI tool speak), "virtual[:channel]",
+    # "udp_multicast[:group[:port]]" (python-can's), "socketcan[:iface]"
+    can_bus: str = spec(default="mcast:0")
     node_id: int = spec("", 1, 127, default=10)  # the autopilot's DroneCAN node id
     actuator_ids: tuple[int, int, int, int] = spec("", 0, 255, default=(1, 2, 3, 4))
     timeout_s: float = spec("s", 0.01, 10.0, lo_open=True, default=0.5)  # plant: silent bus
@@ -39,7 +41,8 @@ def add_servo_args(p: argparse._ActionsContainer) -> None:
     p.add_argument("--servo-link", choices=("mavlink", "can"), default=None,
                    help="servo commands over MAVLink or DroneCAN (default: links config)")
     p.add_argument("--can-bus", default=None,
-                   help="python-can bus: virtual[:ch], udp_multicast[:group[:port]], socketcan[:iface]")
+                   help="CAN bus: mcast[:N] (DroneCAN's UDP multicast, the field's tools; default mcast:0), "
+                        "virtual[:ch], udp_multicast[:group[:port]], socketcan[:iface]")
     p.add_argument("--actuator-ids", default=None, help="DroneCAN actuator ids, e.g. 1,2,3,4")
     p.add_argument("--ccpm", nargs="?", const=DEFAULT_SWASHPLATE, default=None, metavar="SWASHPLATE",
                    help="CCPM: the MAVLink servo channels are the head's swash servos 1-3 and the tail "

@@ -9,6 +9,14 @@ TCP 5760 + 10 N (SERIAL0), e.g. ``mavproxy.py --master tcp:127.0.0.1:5760``; and
 sends to the bench's ground-station UDP port (14550 for instance 0, as ``heli-ground`` and
 QGroundControl expect: ``heli-ground fly --guided``). The firmware writes its eeprom and logs
 into ``--out`` (default: a directory of its own under out/ardupilot).
+
+``--servo-link can`` starts the firmware built with DroneCAN (``arducopter-heli-can``: the
+path given, $ARDUPILOT_HELI_CAN_BIN or ../shared/ardupilot) with ``can-servos.parm`` loaded
+last (its servo outputs also as DroneCAN ArrayCommand on its CAN bus 1, SITL's multicast
+``mcast:0``), and the plant with ``--servo-link can``: its servos then take the bus's
+commands, the JSON frame's PWMs are only cross-checked (docs/can.md, "ArduPilot on the bus").
+The multicast bus is one per host (network namespace), whatever the instance: run one
+CAN-linked flight per namespace.
 """
 
 from __future__ import annotations
@@ -25,22 +33,36 @@ from heli_plant.ardupilot_link import port_for_instance
 from heli_sitl.launch.children import Child, spawn, stop_all
 
 ENV_BIN = "ARDUPILOT_HELI_BIN"  # where the firmware is, if not given on the command line
+ENV_CAN_BIN = "ARDUPILOT_HELI_CAN_BIN"  # the same, built with DroneCAN (--servo-link can)
 # this workplace keeps a build beside the repository (../shared/ardupilot, its README)
 # the repository's parent: heli_sitl/launch/ardupilot.py -> launch, heli_sitl, the repository, its parent
 SHARED_BIN = Path(__file__).resolve().parents[3] / "shared" / "ardupilot" / "arducopter-heli"
+SHARED_CAN_BIN = SHARED_BIN.with_name("arducopter-heli-can")
 ARDUPILOT_CONFIGS = CONFIG_DIR / "ardupilot"
+# --servo-link can: the servo outputs also as DroneCAN ArrayCommand on CAN bus 1 = mcast:0
+CAN_SERVOS_PARM = ARDUPILOT_CONFIGS / "can-servos.parm"
+SERVO_LINKS = ("json", "can")
 
 
 class FirmwareNotFoundError(RuntimeError):
     pass
 
 
-def find_firmware(path: str | None) -> Path:
+def find_firmware(path: str | None, can: bool = False) -> Path:
     """The ``arducopter-heli`` SITL binary: ``path``, else $ARDUPILOT_HELI_BIN, else the shared
-    build; a clear error naming all three when none exists."""
-    for candidate in (path, os.environ.get(ENV_BIN), str(SHARED_BIN)):
+    build; a clear error naming all three when none exists. ``can``: the build with DroneCAN
+    (``path``, else $ARDUPILOT_HELI_CAN_BIN, else the shared ``arducopter-heli-can``)."""
+    env, shared = (ENV_CAN_BIN, SHARED_CAN_BIN) if can else (ENV_BIN, SHARED_BIN)
+    for candidate in (path, os.environ.get(env), str(shared)):
         if candidate and Path(candidate).is_file() and os.access(candidate, os.X_OK):
             return Path(candidate).resolve()
+    if can:
+        raise FirmwareNotFoundError(
+            f"--servo-link can needs arducopter-heli built with DroneCAN, and there is none: give "
+            f"--ardupilot-bin PATH or set {ENV_CAN_BIN} (not found: {shared}; build it from ArduPilot's "
+            "source with DroneCAN on for the SITL board: ./waf configure --board sitl && ./waf heli; "
+            "docs/can.md, \"ArduPilot on the bus\")"
+        )
     raise FirmwareNotFoundError(
         f"no arducopter-heli SITL binary: give --ardupilot-bin PATH or set {ENV_BIN} (build it "
         "from ArduPilot's source: ./waf configure --board sitl && ./waf heli; docs/ardupilot-json.md)"
@@ -57,6 +79,12 @@ def default_parm_files(plant: str) -> list[Path]:
     return files + ([tuning] if tuning.is_file() else [])
 
 
+def can_parm_files(plant: str) -> list[Path]:
+    """The parameter files of ``--servo-link can``, in load order: the defaults, then
+    ``can-servos.parm`` (the plant reads SERVOn_MIN/TRIM/MAX from the same list)."""
+    return [*default_parm_files(plant), CAN_SERVOS_PARM]
+
+
 @dataclass(frozen=True)
 class ArduPilotOptions:
     firmware: Path
@@ -70,6 +98,8 @@ class ArduPilotOptions:
     out: Path = Path("out/ardupilot")
     extra_parm: tuple[Path, ...] = ()
     wipe: bool = True  # -w: start from the parameter files, not the last run's eeprom
+    servo_link: str = "json"  # json: the plant flies the JSON frame's PWMs; can: the DroneCAN bus's
+    can_bus: str = "mcast:0"  # where the plant listens (the firmware's CAN bus 1 is mcast:0)
 
 
 def commands(opts: ArduPilotOptions) -> list[tuple[str, list[str], Path | None]]:
@@ -81,7 +111,14 @@ def commands(opts: ArduPilotOptions) -> list[tuple[str, list[str], Path | None]]
              "--home", opts.home, "--out", str(opts.out)]  # fmt: skip
     if opts.world:
         plant += ["--world", opts.world]
-    parms = ",".join(str(p) for p in [*default_parm_files(opts.plant), *opts.extra_parm])
+    if opts.servo_link not in SERVO_LINKS:
+        raise ValueError(f"servo link {opts.servo_link!r} is not one of {SERVO_LINKS}")
+    base = can_parm_files(opts.plant) if opts.servo_link == "can" else default_parm_files(opts.plant)
+    files = [*base, *opts.extra_parm]
+    if opts.servo_link == "can":
+        plant += ["--servo-link", "can", "--can-bus", opts.can_bus,
+                  "--ardupilot-parms", ",".join(str(p) for p in files)]  # fmt: skip
+    parms = ",".join(str(p) for p in files)
     firmware = [str(opts.firmware), "--model", "JSON", "--speedup", f"{opts.speedup:g}", "--defaults", parms,
                 "-I", str(opts.instance), "--home", f"{opts.home},{opts.heading_deg:g}",
                 # SERIAL0 without :wait, so the physics runs before a ground station connects

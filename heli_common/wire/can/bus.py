@@ -1,10 +1,15 @@
 """Opening a CAN bus: a small, typed, context-managed wrapper over python-can.
 
-Three python-can interfaces are supported, one per deployment:
+Four python-can interfaces are supported, one per deployment:
 
 * ``virtual``: every bus opened on the same channel name *in one process* sees the
   frames the others send (in-process closed loop, tests). Delivery is synchronous: a
   frame sent is in every other bus's queue when ``send`` returns.
+* ``mcast``: DroneCAN's UDP multicast CAN (:mod:`heli_common.wire.can.mcast`), processes
+  on one host, bus N on 239.65.82.N:57732: the format ArduPilot's SITL and AP_Periph
+  nodes, libcanard, pydronecan's ``mcast:N`` driver and so the DroneCAN GUI tool speak.
+  Opened with the bench's own python-can interface (``dronecan_mcast``). Multicast, so
+  only inside a private network namespace in tests, as ``udp_multicast``.
 * ``udp_multicast``: processes on one host, one UDP multicast group per CAN bus. This
   needs ``msgpack`` (``pip install 'python-can[multicast]'``). The default group is
   python-can's IPv4 one (239.74.163.2, port 43113). Multicast leaves the loopback
@@ -18,8 +23,9 @@ Three python-can interfaces are supported, one per deployment:
 
   (``candump vcan0`` from can-utils then shows the servo traffic.)
 
-A bus spec string selects one of them on a command line: ``virtual[:CHANNEL]``,
-``udp_multicast[:GROUP[:PORT]]`` or ``socketcan[:IFACE]`` (see :func:`parse_bus_spec`).
+A bus spec string selects one of them on a command line: ``mcast[:N]`` (pydronecan's
+name; N = 0..9, default 0), ``virtual[:CHANNEL]``, ``udp_multicast[:GROUP[:PORT]]`` or
+``socketcan[:IFACE]`` (see :func:`parse_bus_spec`).
 
 Sending never blocks by default (``send_timeout_s = 0``): a control loop must not stall
 on a full queue; the failure is raised as :class:`CanSendError` for the caller to count.
@@ -33,8 +39,9 @@ from typing import Literal, cast, get_args
 import can
 
 from heli_common.closing import Closing
+from heli_common.wire.can.mcast import MCAST_PORT, DroneCanMcastBus, parse_channel
 
-Interface = Literal["virtual", "udp_multicast", "socketcan"]
+Interface = Literal["virtual", "udp_multicast", "socketcan", "mcast"]
 INTERFACES: tuple[str, ...] = get_args(Interface)
 
 #: python-can's IPv4 fallback group (``UdpMulticastBus.DEFAULT_GROUP_IPv4``). IPv4 on
@@ -46,7 +53,9 @@ DEFAULT_CHANNELS: dict[str, str] = {
     "virtual": "heli-sitl-servo",
     "udp_multicast": UDP_MULTICAST_GROUP_IPV4,
     "socketcan": "vcan0",
+    "mcast": "0",  # the bus number N of 239.65.82.N
 }
+DEFAULT_PORTS: dict[str, int] = {"udp_multicast": UDP_MULTICAST_PORT, "mcast": MCAST_PORT}
 
 CAN_EXTENDED_ID_MASK = 0x1FFFFFFF
 
@@ -65,13 +74,15 @@ class CanBusConfig:
 
     interface: Interface = "virtual"
     channel: str = ""
-    port: int = UDP_MULTICAST_PORT  # udp_multicast only
+    port: int = 0  # udp_multicast and mcast; 0: the interface's (43113, 57732)
     send_timeout_s: float = 0.0  # 0: never block the control loop on a full queue
     rx_queue_size: int = 0  # virtual only; 0 = unbounded (python-can's default)
 
     def __post_init__(self) -> None:
         if self.interface not in INTERFACES:
             raise ValueError(f"CAN interface must be one of {INTERFACES}, got {self.interface!r}")
+        if self.port == 0:
+            object.__setattr__(self, "port", DEFAULT_PORTS.get(self.interface, UDP_MULTICAST_PORT))
         if not 0 < self.port < 65536:
             raise ValueError(f"UDP port must be in 1..65535, got {self.port}")
         if self.send_timeout_s < 0.0:
@@ -80,19 +91,30 @@ class CanBusConfig:
             raise ValueError("rx_queue_size must be >= 0")
         if not self.channel:
             object.__setattr__(self, "channel", DEFAULT_CHANNELS[self.interface])
+        if self.interface == "mcast":  # "0".."9", as the spec writes it
+            object.__setattr__(self, "channel", str(parse_channel(self.channel)))
 
     def describe(self) -> str:
         if self.interface == "udp_multicast":
             return f"udp_multicast:{self.channel}:{self.port}"
+        if self.interface == "mcast" and self.port != MCAST_PORT:
+            return f"mcast:{self.channel}:{self.port}"
         return f"{self.interface}:{self.channel}"
 
 
 def parse_bus_spec(spec: str) -> CanBusConfig:
-    """``virtual[:CHANNEL]``, ``udp_multicast[:GROUP[:PORT]]``, ``socketcan[:IFACE]``."""
+    """``mcast[:N]``, ``virtual[:CHANNEL]``, ``udp_multicast[:GROUP[:PORT]]``,
+    ``socketcan[:IFACE]``; ValueError naming the forms otherwise."""
     head, _, rest = spec.strip().partition(":")
     if head not in INTERFACES:
-        raise ValueError(f"unknown CAN bus {spec!r}; expected one of {INTERFACES} [:channel]")
+        raise ValueError(f"unknown CAN bus {spec!r}; expected mcast[:N], virtual[:channel], "
+                         f"udp_multicast[:group[:port]] or socketcan[:iface]")  # fmt: skip
     interface = cast(Interface, head)
+    if interface == "mcast":
+        bus, _, port = rest.partition(":")  # the port only for tests (the field's is 57732)
+        if port and not port.isdigit():
+            raise ValueError(f"CAN bus {spec!r}: the port must be a number")
+        return CanBusConfig("mcast", str(parse_channel(bus)), int(port) if port else MCAST_PORT)
     if interface == "udp_multicast" and rest:
         group, _, port = rest.partition(":")
         cfg = CanBusConfig(interface, group)
@@ -108,8 +130,10 @@ def _open(config: CanBusConfig) -> can.BusABC:
             )
         if config.interface == "udp_multicast":
             return can.Bus(interface="udp_multicast", channel=config.channel, port=config.port)
+        if config.interface == "mcast":  # the class itself: no dependence on installed entry points
+            return DroneCanMcastBus(int(config.channel), port=config.port)
         return can.Bus(interface="socketcan", channel=config.channel)
-    except (can.CanError, OSError, ImportError, RuntimeError) as exc:
+    except (can.CanError, OSError, ImportError, RuntimeError, ValueError) as exc:
         # udp_multicast raises RuntimeError without msgpack; socketcan OSError without vcan0
         raise CanBusError(f"cannot open CAN bus {config.describe()}: {exc}") from exc
 
@@ -157,8 +181,6 @@ class CanBus(Closing):
         if not self.closed:
             self.closed = True
             self.bus.shutdown()
-
-
 
 
 def open_bus(config: CanBusConfig | str) -> CanBus:
