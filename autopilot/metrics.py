@@ -6,6 +6,7 @@ import csv
 import functools
 import json
 import math
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -245,10 +246,20 @@ class FlightRecord:
         rows = self.rows()
         return {name: rows[:, i] for i, name in enumerate(self.header)}
 
-    def write_csv(self, path: Path) -> None:
+    def write_csv(self, path: Path, mcap: bool | None = None) -> None:
+        """``path`` (run.csv's columns) and, beside a file named ``run.csv`` (every run's
+        record; ``mcap`` True or False: whatever its name, or never), ``flight.mcap`` from the
+        file as written (:mod:`autopilot.mcap_log`): after the flight, never in its loop."""
         with path.open("w", newline="") as fh:
             csv.writer(fh).writerow(self.header)
             write_rows(fh, self.rows())
+        if mcap if mcap is not None else path.name == "run.csv":
+            from autopilot.mcap_log import McapMissingError, write_mcap_from_csv
+
+            try:
+                write_mcap_from_csv(path, path.with_name("flight.mcap"))
+            except McapMissingError as exc:  # the run's other outputs still follow
+                warnings.warn(f"{path.with_name('flight.mcap')} not written: {exc}", stacklevel=2)
 
     def write_world_csv(self, path: Path) -> bool:
         """world.csv: per tick, the air (earth NWU, m/s) and the pitches the servos reached

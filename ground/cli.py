@@ -17,6 +17,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+from autopilot.mcap_log import McapMissingError
 from ground.client import (
     PX4_MAIN_AUTO,
     PX4_SUB_MISSION,
@@ -26,7 +27,7 @@ from ground.client import (
     MissionProgress,
 )
 from ground.files import FileFormatError, MissionFile, load_mission, load_trajectory
-from ground.log import TlogError, tlog_columns, write_csv
+from ground.log import TlogError, tlog_columns, tlog_to_mcap, write_csv
 from heli_common import cli_args as arg
 from heli_common.defaults import ports
 from heli_common.process import run_main
@@ -99,9 +100,14 @@ def build_parser() -> argparse.ArgumentParser:
                      help="--guided: write the streamed target and the vehicle's estimate to this CSV")
     fly.set_defaults(func=_fly)
 
-    lg = sub.add_parser("log", parents=[common], help="record everything received to a .tlog")
-    lg.add_argument("--out", type=Path, required=True, help="the .tlog to write")
+    lg = sub.add_parser("log", parents=[common],
+                        help="record everything received to a .tlog (or convert one: --mcap/--csv FILE.tlog)")
+    lg.add_argument("tlog", type=Path, nargs="?", default=None,
+                    help="convert this .tlog (to --mcap and/or --csv) instead of recording")
+    lg.add_argument("--out", type=Path, default=None, help="the .tlog to write (recording)")
     lg.add_argument("--csv", type=Path, default=None, help="then export run.csv columns to this file")
+    lg.add_argument("--mcap", type=Path, default=None,
+                    help="then write the flight as MCAP (Foxglove, PlotJuggler; docs/logs.md) to this file")
     lg.add_argument("--duration-s", type=arg.positive, default=None,
                     help="stop after this long (default: Ctrl-C)")
     lg.set_defaults(func=_log)
@@ -134,7 +140,8 @@ def main(argv: list[str] | None = None) -> int:
         terminate_on_sigterm()
     arg.resolve_instance(args, {"gcs_port": "gcs"})
     func: Callable[[argparse.Namespace], int] = args.func
-    return run_main(PROG, lambda: func(args), usage=(FileFormatError, TlogError, UsageError),
+    usage = (FileFormatError, TlogError, UsageError, McapMissingError)
+    return run_main(PROG, lambda: func(args), usage=usage,
                     failure=(GroundError,), port_hint=" (another ground station listening? see --gcs-port)")
 
 
@@ -307,6 +314,29 @@ def _disarm_when_landed(gc: GroundClient, timeout_s: float = 10.0) -> None:
 
 
 def _log(args: argparse.Namespace) -> int:
+    if args.tlog is not None:  # convert a recorded log: no vehicle
+        if args.out is not None or (args.csv is None and args.mcap is None):
+            raise UsageError("log FILE.tlog converts it: give --mcap OUT.mcap and/or --csv OUT.csv")
+        _export(args.tlog, args.csv, args.mcap, args.sysid)
+        return 0
+    if args.out is None:
+        raise UsageError("log: give --out FILE.tlog to record (or a FILE.tlog to convert)")
+    _record(args)
+    _export(args.out, args.csv, args.mcap, args.sysid)
+    return 0
+
+
+def _export(tlog: Path, csv: Path | None, mcap: Path | None, sysid: int) -> None:
+    if csv is not None:
+        cols = tlog_columns(tlog)
+        write_csv(cols, csv)
+        print(f"wrote {csv} ({len(cols['t_s'])} rows)")
+    if mcap is not None:
+        out, n = tlog_to_mcap(tlog, mcap, system_id=sysid)
+        print(f"wrote {out} ({n} rows)")
+
+
+def _record(args: argparse.Namespace) -> None:
     with TlogWriter(args.out) as tlog, _client(args, tlog) as gc:
         end = None if args.duration_s is None else time.monotonic() + args.duration_s
         try:
@@ -319,11 +349,6 @@ def _log(args: argparse.Namespace) -> int:
             pass  # the normal way to stop a recording without --duration-s
         n = gc.link.stats.rx_messages
     print(f"wrote {args.out} ({n} messages)")
-    if args.csv is not None:
-        cols = tlog_columns(args.out)
-        write_csv(cols, args.csv)
-        print(f"wrote {args.csv} ({len(cols['t_s'])} rows)")
-    return 0
 
 
 def _plot(args: argparse.Namespace) -> int:

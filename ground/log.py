@@ -46,13 +46,14 @@ import numpy.typing as npt
 
 from autopilot.metrics import CSV_HEADER
 from heli_common import frames
+from heli_common.geo import GeoPoint
 from heli_common.state import FloatArray
 from heli_common.vehicle.airframe import Airframe
 from heli_common.wire import servo_map
 from heli_common.wire.mavlink.udp import Message, TlogWriter, mavlink2
 
-__all__ = ["STALE_S", "TlogError", "TlogStats", "TlogWriter", "read_tlog", "tlog_columns", "tlog_time_origin",
-           "write_csv"]
+__all__ = ["STALE_S", "TlogError", "TlogStats", "TlogWriter", "read_tlog", "tlog_columns", "tlog_home",
+           "tlog_time_origin", "tlog_to_mcap", "write_csv"]
 
 Columns = dict[str, npt.NDArray[np.float64]]
 STALE_S = 0.35  # a 10 Hz message older than this (3.5 periods) is not "the current" one
@@ -263,3 +264,38 @@ def write_csv(cols: Columns, path: Path | str) -> None:
         n = len(cols["t_s"])
         for i in range(n):
             w.writerow([f"{cols[h][i]:.9g}" for h in CSV_HEADER])
+
+
+def tlog_home(path: Path | str, system_id: int = 1) -> GeoPoint | None:
+    """The vehicle's home from the log (the last HOME_POSITION, else GPS_GLOBAL_ORIGIN), or None."""
+    home: GeoPoint | None = None
+    origin: GeoPoint | None = None
+    for _, m in read_tlog(path):
+        kind = m.get_type()
+        if kind not in ("HOME_POSITION", "GPS_GLOBAL_ORIGIN") or m.get_srcSystem() != system_id:
+            continue
+        try:
+            g = GeoPoint(m.latitude / 1e7, m.longitude / 1e7, m.altitude / 1e3)
+        except ValueError:
+            continue
+        if kind == "HOME_POSITION":
+            home = g
+        else:
+            origin = g
+    return home or origin
+
+
+def tlog_to_mcap(
+    path: Path | str, out: Path | str, *, system_id: int = 1, airframe: Airframe | None = None
+) -> tuple[Path, int]:
+    """The vehicle's telemetry in a .tlog as an MCAP file (:mod:`autopilot.mcap_log`: the
+    run.csv columns of :func:`tlog_columns`, positions about the log's home, the bench's
+    home when the log has none); returns the file and the number of rows."""
+    from autopilot.mcap_log import write_mcap
+    from heli_common.defaults import HOME
+
+    cols = tlog_columns(path, system_id=system_id, airframe=airframe)
+    n = len(cols["t_s"])
+    if n == 0:
+        raise TlogError(f"{path}: no position telemetry (LOCAL_POSITION_NED) from system {system_id}")
+    return write_mcap(cols, out, home=tlog_home(path, system_id) or HOME), n

@@ -165,6 +165,13 @@ class FlightResult:
 
         return pa.table(self.columns())
 
+    def to_mcap(self, path: str | Path) -> Path:
+        """The flight as an MCAP file (run.csv's columns; Foxglove's /tf, /pose, /scene, /fix
+        and the /run rows: :mod:`autopilot.mcap_log`) at ``path``; returns it."""
+        from autopilot.mcap_log import write_mcap
+
+        return write_mcap(self._rec.columns(), path)
+
     def plot(self, ax: Axes | None = None) -> Axes:
         """The 3-D position error against time (the figure every comparison starts from)."""
         if ax is None:
