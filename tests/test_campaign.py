@@ -622,3 +622,23 @@ def test_a_campaign_with_failed_flights_exits_non_zero(
     monkeypatch.setattr(run, "run_campaign", fake(2))
     assert main(["campaign", "robustness", "--out", str(tmp_path)]) == 3
     assert "2 of 10 flights failed" in capsys.readouterr().err
+
+
+def test_a_directory_flown_with_other_gains_is_another_campaign(tmp_path: Path) -> None:
+    """The same campaign file over a gain file whose values changed: its rows would be stale,
+    so the directory refuses it (a resumed comparison once reported a PID's old gains' rows
+    beside its new trajectories); the same files again resume."""
+    from heli_sitl.studies.campaigns.run import _claim, _identity
+
+    spec, base, table = prepare("robustness-rotor")
+    again = prepare("robustness-rotor")
+    same = _identity(again[0], again[2], again[1])
+    assert _identity(spec, table, base) == same
+    pid = dataclasses.replace(base.scenario.gains, name="edited")
+    edited = dataclasses.replace(base, scenario=dataclasses.replace(base.scenario, gains=pid))
+    other = _identity(spec, table, edited)
+    assert other["hash"] != same["hash"]
+    _claim(tmp_path, same)
+    _claim(tmp_path, same)  # a re-run of the same campaign: resumes
+    with pytest.raises(ConfigError, match="holds the results of another campaign"):
+        _claim(tmp_path, other)

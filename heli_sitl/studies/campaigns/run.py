@@ -96,9 +96,16 @@ def prepare(
     return spec, base, table
 
 
-def _identity(spec: CampaignSpec, table: np.ndarray) -> dict[str, Any]:
+def _identity(spec: CampaignSpec, table: np.ndarray, base: FlightSetup) -> dict[str, Any]:
+    """What a directory's rows were flown with: the spec, the samples, and what the files the
+    spec names held (a gain file edited since is another campaign: its rows would be stale,
+    as a resumed comparison once reported a PID's old gains beside its new ones)."""
     h = hashlib.sha256(json.dumps(dataclasses.asdict(spec), sort_keys=True, default=str).encode())
     h.update(np.ascontiguousarray(table).tobytes())
+    # frozen dataclasses loaded from the files: their repr is the values, the same in every process
+    loaded = (base.scenario.gains, base.pid_gains, base.plant, base.scenario.airframe, base.world,
+              base.estimator)  # fmt: skip
+    h.update(repr(loaded).encode())
     return {
         "name": spec.name,
         "source": spec.source,
@@ -216,7 +223,7 @@ def run_campaign(
     without its ~2 s of CPU a figure; a re-run over ``out`` draws them) its figures."""
     t_start = time.perf_counter()
     spec, base, table = prepare(path, samples, controller)
-    ident = _identity(spec, table)
+    ident = _identity(spec, table, base)
     _claim(out, ident)
     n_workers = workers or os.cpu_count() or 1
     from tqdm import tqdm
