@@ -96,11 +96,14 @@ PID_PARAMS: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
     ("PID_VEL_P", "velocity", "kp", XYZ),
     ("PID_VEL_I", "velocity", "ki", XYZ),
     ("PID_VEL_IMAX", "velocity", "i_max_m_s2", ()),
+    ("PID_ACC_MAX_Z", "velocity", "accel_max_z_m_s2", ()),
     ("PID_ATT_P", "attitude", "kp", RPY),
     ("PID_RMAX", "attitude", "max_rate_rad_s", RPY),
+    ("PID_HOVR_ROL_TRM", "attitude", "hover_roll_trim_rad", ()),  # ArduPilot's ATC_HOVR_ROL_TRM
     ("PID_RATE_P", "rate", "kp", RPY),
     ("PID_RATE_I", "rate", "ki", RPY),
     ("PID_RATE_D", "rate", "kd", RPY),
+    ("PID_RATE_FF", "rate", "ff", RPY),  # ArduPilot's ATC_RAT_*_FF
     ("PID_RATE_DHZ", "rate", "d_filter_hz", ()),
     ("PID_RATE_IMAX", "rate", "i_max_rad_s2", ()),
     ("PID_TILT_MAX", "limits", "tilt_max_rad", ()),

@@ -47,7 +47,7 @@ def test_the_readme_counts_the_parameters_the_vehicle_serves() -> None:
     table = ParamTable(sc.gains, sc.airframe.limits, sc.run.rate_hz, pid_gains=default_pid_gains())
     readme = (EXAMPLES.parent.parent / "README.md").read_text()
     m = re.search(r"\*\*Parameters\*\* \((\d+) served by `heli-sitl up`", readme)
-    assert m is not None and int(m.group(1)) == len(table) == 92
+    assert m is not None and int(m.group(1)) == len(table) == 97
 
 
 def test_the_readmes_python_snippets_run_as_written(tmp_path: Path) -> None:

@@ -63,7 +63,7 @@ def f32(x: float) -> float:
 def test_names_are_unique_short_and_stable() -> None:
     names = [s.name for s in SPECS]
     # 44 of the vehicle, 30 PID_ of the baseline, 10 SIM_ of the world, 8 of its sensors
-    assert len(names) == len(set(names)) == 92
+    assert len(names) == len(set(names)) == 97
     assert all(0 < len(n) <= 16 and n.isascii() and n.upper() == n for n in names)
     assert names[:3] == ["TLC_L1_W_X", "TLC_L1_W_Y", "TLC_L1_W_Z"]
     for required in (
