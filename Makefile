@@ -17,7 +17,7 @@ $(STAMP): pyproject.toml
 
 demo: $(STAMP)
 	$(BIN)/heli-sitl simulate --scenario paper --out $(OUT)
-	@echo "demo outputs in $(OUT)/ (run.csv, summary.json, fig5..fig9 PNGs)"
+	@echo "demo outputs in $(OUT)/ (run.csv, flight.mcap, summary.json, fig5..fig9 PNGs)"
 
 lint: $(STAMP)
 	$(BIN)/ruff check heli_common heli_plant heli_sitl autopilot ground tests benchmarks
