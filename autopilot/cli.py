@@ -31,7 +31,7 @@ from heli_common import cli_args as arg
 from heli_common.defaults import HOME, Exit, ports
 from heli_common.geo import parse_geo_point
 from heli_common.process import UsageError, run_main, stop_on_signals
-from heli_common.rt_priority import add_rt_priority_arg, apply_rt_priority, current_policy
+from heli_common.rt_priority import add_rt_priority_arg, apply_rt_priority, check_rt_priority, current_policy
 from heli_common.wire.links import ServoOutput
 from heli_common.wire.mavlink.udp import LOOPBACK
 from heli_common.wire.mavlink.wire import read_signing_key
@@ -140,7 +140,7 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
     arg.resolve_instance(args, AUTOPILOT_PORTS)
     if args.port == args.plant_port:  # it would only hear its own commands
         raise UsageError(f"--port and --plant-port must differ (both {args.port})")
-    apply_rt_priority(args.rt_priority, args.mode, log)
+    check_rt_priority(args.rt_priority, args.mode)
     sc = Scenario.load(args.scenario, gains=args.gains)
     world = World.load(args.world) if args.world else None  # refused before anything starts
     estimator = EstimatorConfig.load(args.estimator) if args.estimator else None
@@ -182,6 +182,7 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
             if gcs is not None:
                 gcs.truth = lambda: runner.sample
                 gcs.nav = lambda: runner.nav
+            apply_rt_priority(args.rt_priority, args.mode, log)  # the loop's, after the start-up
             stats = runner.run(stop)
             link = sim.udp.stats.as_dict()
             asm = sim.assembler

@@ -64,13 +64,22 @@ def add_rt_priority_arg(p: argparse._ActionsContainer) -> None:
                    f"{DEFAULT_PRIORITY}; Linux, root or CAP_SYS_NICE; else a warning, the default policy)")
 
 
+def check_rt_priority(priority: int, mode: str) -> None:
+    """UsageError for ``--rt-priority`` in lockstep, whose waits spin and would hold the core:
+    said at once, before anything starts."""
+    if priority != 0 and mode != "realtime":
+        raise UsageError(f"--rt-priority is for --mode realtime (lockstep's waits spin), got --mode {mode}")
+
+
 def apply_rt_priority(priority: int, mode: str, log: logging.Logger) -> None:
     """The process's ``--rt-priority``: requested in real time (a refusal is a warning, the
-    loop runs as before); UsageError in lockstep, whose waits spin and would hold the core."""
+    loop runs as before); UsageError in lockstep. Call it from the loop's thread just before
+    the loop: the start-up (imports, loading compiled code, building the controller) then
+    runs under the default policy, and two starting processes under SCHED_FIFO at one
+    priority cannot hold a core from each other's running loops."""
     if priority == 0:
         return
-    if mode != "realtime":
-        raise UsageError(f"--rt-priority is for --mode realtime (lockstep's waits spin), got --mode {mode}")
+    check_rt_priority(priority, mode)
     reason = request_fifo(priority)
     if reason is None:
         log.info("scheduling: SCHED_FIFO at priority %d", priority)

@@ -17,7 +17,7 @@ from heli_common.config import ConfigError
 from heli_common.defaults import HOME, Exit, ports
 from heli_common.geo import parse_geo_point
 from heli_common.process import UsageError, run_main, stop_on_signals
-from heli_common.rt_priority import add_rt_priority_arg, apply_rt_priority
+from heli_common.rt_priority import add_rt_priority_arg, apply_rt_priority, check_rt_priority
 from heli_common.vehicle.plant_model import PLANT_HELP
 from heli_common.wire.servo_link import add_servo_args, servo_map_for
 from heli_common.wire.servo_map import limits_array
@@ -411,7 +411,7 @@ def _run(args: argparse.Namespace) -> int:
         level=logging.INFO if args.verbose else logging.WARNING,
         format="heli-sitl: %(levelname)s %(message)s",
     )
-    apply_rt_priority(args.rt_priority, args.mode, logging.getLogger("heli-sitl"))
+    check_rt_priority(args.rt_priority, args.mode)
     stop = threading.Event()
     stop_on_signals(stop)
     airframe, x0, rate = load_vehicle(args.scenario, on_ground=args.on_ground)
@@ -448,6 +448,8 @@ def _run(args: argparse.Namespace) -> int:
 
             servo_in = MavlinkServoInput(link, SimCodec(system_id=1, component_id=51), servos)
         try:
+            # SCHED_FIFO from here: the start-up above ran under the default policy
+            apply_rt_priority(args.rt_priority, args.mode, logging.getLogger("heli-sitl"))
             stats = PlantServer(plant, link, cfg, servo_in).run(stop)
             if can is not None:
                 stats.extra["can"] = dict(can.stats)
