@@ -13,6 +13,15 @@ $(STAMP): pyproject.toml
 	$(BIN)/pip install --quiet -e '.[dev]'
 	# MAVProxy's full dependency set is over 1 GB (wx, opencv...); the console needs none of it
 	$(BIN)/pip install --quiet --no-deps mavproxy
+	# the view's browser test (tests/test_view.py) drives Debian's chromium and chromedriver:
+	# installed here where the set-up may (root with apt); elsewhere that test skips, saying why
+	@if ! command -v chromium >/dev/null || ! command -v chromedriver >/dev/null; then \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	    echo "installing Debian's chromium and chromium-driver (the view's browser test)"; \
+	    (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium chromium-driver \
+	      >/dev/null) || echo "chromium could not be installed: tests/test_view.py will skip"; \
+	  else echo "no chromium and no root apt: tests/test_view.py will skip"; fi; \
+	fi
 	touch $(STAMP)
 
 demo: $(STAMP)

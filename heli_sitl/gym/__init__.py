@@ -1,0 +1,1 @@
+"""Gymnasium environments of the bench: HeliSitl/Track-v0 and its vectorised form."""
