@@ -29,7 +29,7 @@ demo: $(STAMP)
 	@echo "demo outputs in $(OUT)/ (run.csv, flight.mcap, summary.json, fig5..fig9 PNGs)"
 
 lint: $(STAMP)
-	$(BIN)/ruff check heli_common heli_plant heli_sitl autopilot ground tests benchmarks
+	$(BIN)/ruff check heli_common heli_plant heli_sitl autopilot ground tests benchmarks docs/examples
 	$(BIN)/mypy
 	$(BIN)/lint-imports --no-cache
 

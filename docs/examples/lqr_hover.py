@@ -9,9 +9,11 @@ pitches``, ``reset()``. The same class flies
 
 * in-process:        ``python docs/examples/lqr_hover.py`` (the paper scenario), or
                      ``hs.simulate(controller="docs/examples/lqr_hover.py:LqrHover")``;
-* as processes:      ``heli-sitl demo --mode lockstep --autostart --controller docs/examples/lqr_hover.py:LqrHover --out out/lqr``
+* as processes:      ``heli-sitl demo --mode lockstep --autostart --out out/lqr
+                     --controller docs/examples/lqr_hover.py:LqrHover``
                      (the autopilot process loads the class);
-* in a campaign:     ``heli-sitl campaign robustness --controller docs/examples/lqr_hover.py:LqrHover --out out/lqr-campaign``.
+* in a campaign:     ``heli-sitl campaign robustness --out out/lqr-campaign
+                     --controller docs/examples/lqr_hover.py:LqrHover``.
 
 A linear law about hover has no feedforward of the trajectory's acceleration and no model
 of the attitude the thrust needs: it tracks the paper's slow circle (0.8 m/s) to a few
@@ -24,9 +26,9 @@ import numpy as np
 import scipy.linalg
 
 import heli_sitl as hs
-from heli_common.vehicle.airframe import Airframe
 from heli_common.kinematics import rot_body_to_earth
 from heli_common.state import EULER, N_STATE, POS, PSI, VEL, FloatArray
+from heli_common.vehicle.airframe import Airframe
 
 # Bryson's rule: the largest error (or command) we accept on each state (and input)
 MAX_ERROR = np.array([0.2, 0.2, 0.2,          # position NWU [m]
