@@ -21,6 +21,10 @@ logged, at most once a second per kind; the previous pitches stay held):
   transfers carry none; a corrupted end flag can make one out of a first frame, and that
   can never hold four commands).
 * A non-finite value refuses the whole transfer (as ``heli_plant.model.accept_pitches``).
+* A transfer received again (the same source and transfer id within
+  :data:`TRANSFER_ID_TIMEOUT_S`: the lockstep autopilot re-sending its answer to a state the
+  plant re-sent) is dropped (``repeated_transfer``): a command carries no time stamp, and
+  applied again it would become the next tick's command.
 * Limits: a value beyond a servo limit by more than one float16 step at that limit
   (~6e-4 rad at 0.6 rad) refuses the whole transfer (``out_of_limits``): the sender's
   limits differ from the plant's, or it is faulty, and a silently clipped command would
@@ -111,6 +115,9 @@ LIMIT_TOLERANCE_REL = 2.0**-10
 DEFAULT_PLANT_NODE_ID = 20
 SERVOS_NODE_NAME = "org.heli-tlc-sitl.servos"
 NODE_STATUS_PERIOD_S = 1.0
+#: a transfer id seen again from the same source within this long is the same transfer
+#: (libcanard's TRANSFER_TIMEOUT_USEC, 2 s); later, 32 transfers on, it is a new one
+TRANSFER_ID_TIMEOUT_S = 2.0
 #: uavcan.equipment.actuator.Status per servo: 10 Hz, 8 frames (4 servos x 2) a publication
 ACTUATOR_STATUS_PERIOD_S = 0.1
 
@@ -131,6 +138,7 @@ STAT_KEYS = (
     "clipped",  # applied, with a value within float16 rounding past a limit
     *(r.value for r in DropReason),  # frame/transfer-level drops (see DropReason)
     "foreign_source",  # ArrayCommand from another node than source_node_id
+    "repeated_transfer",  # an ArrayCommand transfer received again (same source and transfer id)
     "unknown_actuator",  # commands (not transfers) for actuator ids not ours: ignored
     "missing_actuator",  # transfers without a command for one of our servos
     "duplicate_actuator",
@@ -198,6 +206,8 @@ class CanServoEndpoint(Closing):
         self._reassembler = Reassembler((ARRAY_COMMAND_DTID, NODE_STATUS_DTID, ARMING_STATUS_DTID),
                                         self._on_drop)  # fmt: skip
         self.armed = False  # the autopilot's latest uavcan.equipment.safety.ArmingStatus
+        # the last ArrayCommand transfer (source node, transfer id, when): a repeat is dropped
+        self._last_command: tuple[int, int, float] | None = None
 
         if not (math.isfinite(actuator_status_period_s) and actuator_status_period_s > 0.0):
             raise ValueError("actuator_status_period_s must be a positive number")
@@ -393,6 +403,15 @@ class CanServoEndpoint(Closing):
         if self.source_node_id is not None and tr.source_node_id != self.source_node_id:
             self._refuse("foreign_source", f"{who}: expected node {self.source_node_id}")
             return
+        last = self._last_command
+        if (last is not None and last[:2] == (tr.source_node_id, tr.transfer_id)
+                and now_s - last[2] <= TRANSFER_ID_TIMEOUT_S):  # fmt: skip
+            # the same transfer sent again (the lockstep autopilot answering a re-sent state):
+            # this tick's command is already held, and a command carries no time stamp, so
+            # applied again it would become the next tick's
+            self.stats["repeated_transfer"] += 1
+            return
+        self._last_command = (tr.source_node_id, tr.transfer_id, now_s)
         values = np.full(N_PITCH, math.nan)
         seen = [False] * N_PITCH
         unknown: list[int] = []

@@ -203,6 +203,47 @@ def test_sender_to_endpoint_applies_float16_pitches(
     assert not any(bad.values()), bad
 
 
+def test_a_repeated_answer_is_the_same_transfer_and_is_not_the_next_ticks_command(
+    channel: str, endpoint: CanServoEndpoint
+) -> None:
+    """The lockstep race: the plant re-sends state t (no answer within resend_s), the slow
+    autopilot answers t, then the re-sent t again. The second answer is the same transfer
+    (same transfer id): dropped, so the plant, now at t + dt, waits for the answer to
+    t + dt instead of holding a repeat of t's. A new command of the same values is new."""
+    from autopilot.links.can_servo import CanServoOutput
+
+    with CanServoSender(CanBusConfig("virtual", channel), node_id=AUTOPILOT_NODE) as tx:
+        out = CanServoOutput(tx)
+        out.send_pitches(10_000, np.array(U1), True)  # the answer to t
+        out.send_pitches(10_000, np.array(U1), True)  # the answer to the re-sent t
+        assert tx.stats["commands_repeated"] == 1 and tx.stats["commands_sent"] == 1
+        before = endpoint.stats["commands_applied"]
+        held = endpoint.poll(1.0)
+        assert held is not None and held.tolist() == f16(U1)
+        assert endpoint.stats["commands_applied"] == before + 1
+        assert endpoint.stats["repeated_transfer"] == 1
+        out.send_pitches(20_000, np.array(U1), True)  # t + dt, the same values: a new command
+        endpoint.poll(1.01)
+        assert endpoint.stats["commands_applied"] == before + 2
+        assert tx.stats["commands_repeated"] == 1
+        out.send_pitches(20_000, np.array(U2), True)  # the same time, other values: new
+        endpoint.poll(1.02)
+        assert endpoint.stats["commands_applied"] == before + 3
+    # a transfer id seen again after the transfer-id timeout is a new transfer (32 later)
+    enc = ArrayCommandEncoder(AUTOPILOT_NODE)
+    frames = enc.encode(list(U2))
+    with CanBus(CanBusConfig("virtual", channel)) as bus:
+        put(bus, frames)
+        endpoint.poll(2.0)
+        applied = endpoint.stats["commands_applied"]
+        put(bus, frames)
+        endpoint.poll(2.5)  # within 2 s: a repeat
+        assert endpoint.stats["commands_applied"] == applied
+        put(bus, frames)
+        endpoint.poll(4.6)  # 2.6 s after the transfer: a new one
+        assert endpoint.stats["commands_applied"] == applied + 1
+
+
 def test_configured_actuator_ids_and_node_id(channel: str) -> None:
     ids = (11, 12, 13, 14)
     with (

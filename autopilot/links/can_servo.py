@@ -18,6 +18,13 @@ tick sends the next command. Encoding is dronecan's (see
 :mod:`heli_common.wire.can.dronecan_codec`); python-can is driven directly because
 dronecan 1.0.27's own python-can driver does not work with python-can >= 4.4.
 
+A command re-sent (:meth:`CanServoSender.repeat`; the lockstep runner answers a state the
+plant re-sent, its answer having been lost or late) goes out as the same transfer, its
+frames and transfer id unchanged: DroneCAN numbers each source's transfers of a data type
+0..31, so a receiver tells a repeated transfer from the next command (the plant drops it,
+:mod:`heli_plant.can_endpoint`). An ArrayCommand carries no time stamp: a repeat sent as
+a new transfer would be applied to the plant's next tick, and the lockstep flight would run
+a tick behind from there on.
 """
 
 from __future__ import annotations
@@ -77,6 +84,7 @@ SENDER_STAT_KEYS = (
     "arming_status_sent",  # uavcan.equipment.safety.ArmingStatus, on change and at 2 Hz
     "node_info_answered",  # uavcan.protocol.GetNodeInfo requests answered
     "node_info_errors",  # answers cut short by a bus error
+    "commands_repeated",  # the last ArrayCommand transfer sent again, same transfer id
 )
 ARMING_STATUS_PERIOD_S = 0.5
 
@@ -121,6 +129,7 @@ class CanServoSender(Closing):
         self.identity = NodeIdentity(AUTOPILOT_NODE_NAME, project_version())
         self.node_info = NodeInfoResponder(node_id, self.identity)
         self._health = HEALTH_OK
+        self._last_command: list[CanFrame] = []  # the frames of the last ArrayCommand sent
 
     def send(self, pitches_rad: npt.ArrayLike, t_s: float, armed: bool | None = None) -> bool:
         """Send this tick's pitches [rad] (and NodeStatus when due; ArmingStatus, when
@@ -145,15 +154,24 @@ class CanServoSender(Closing):
                 "CAN servo out: non-finite pitches %s sent; the servos will refuse them",
                 u.tolist(),
             )  # fmt: skip
-        ok = self._send_frames(
-            self.commands.encode(u.tolist()), "ArrayCommand", "send_errors", t_s
-        )
+        self._last_command = self.commands.encode(u.tolist())
+        ok = self._send_frames(self._last_command, "ArrayCommand", "send_errors", t_s)
         if ok:
             self.stats["commands_sent"] += 1
         else:
             self._errors_since_status += 1
         if self._next_status_s is None or t_s >= self._next_status_s:
             self._send_status(t_s)
+        return ok
+
+    def repeat(self, t_s: float) -> bool:
+        """Send the last ArrayCommand again as the same transfer (its transfer id unchanged:
+        a receiver that has it drops the repeat); True if all its frames went out."""
+        if not self._last_command:
+            return False
+        ok = self._send_frames(self._last_command, "ArrayCommand", "send_errors", t_s)
+        if ok:
+            self.stats["commands_repeated"] += 1
         return ok
 
     def close(self) -> None:
@@ -219,6 +237,13 @@ class CanServoOutput:
 
     def __init__(self, sender: CanServoSender) -> None:
         self.sender = sender
+        self._last: tuple[int, tuple[float, ...], bool] | None = None
 
     def send_pitches(self, t_us: int, pitches_rad: FloatArray, armed: bool) -> None:
+        """A new command, or, for the tick's own command sent again (the same time, pitches
+        and arming: the lockstep runner answering a re-sent state), the same transfer."""
+        this = (t_us, tuple(np.asarray(pitches_rad, dtype=float).reshape(-1).tolist()), armed)
+        if this == self._last and self.sender.repeat(t_us / 1e6):
+            return
+        self._last = this
         self.sender.send(pitches_rad, t_us / 1e6, armed=armed)
