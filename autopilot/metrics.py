@@ -248,16 +248,17 @@ class FlightRecord:
 
     def write_csv(self, path: Path, mcap: bool | None = None) -> None:
         """``path`` (run.csv's columns) and, beside a file named ``run.csv`` (every run's
-        record; ``mcap`` True or False: whatever its name, or never), ``flight.mcap`` from the
-        file as written (:mod:`autopilot.mcap_log`): after the flight, never in its loop."""
+        record; ``mcap`` True or False: whatever its name, or never), ``flight.mcap`` with the
+        numbers the file holds (:mod:`autopilot.mcap_log`): after the flight, never in its loop."""
+        rows = self.rows()
         with path.open("w", newline="") as fh:
             csv.writer(fh).writerow(self.header)
-            write_rows(fh, self.rows())
+            write_rows(fh, rows)
         if mcap if mcap is not None else path.name == "run.csv":
-            from autopilot.mcap_log import McapMissingError, write_mcap_from_csv
+            from autopilot.mcap_log import McapMissingError, write_mcap_as_csv
 
-            try:
-                write_mcap_from_csv(path, path.with_name("flight.mcap"))
+            try:  # run.csv's numbers, from the rows (reading the file back costs more than the MCAP)
+                write_mcap_as_csv(self.header, rows, path.with_name("flight.mcap"))
             except McapMissingError as exc:  # the run's other outputs still follow
                 warnings.warn(f"{path.with_name('flight.mcap')} not written: {exc}", stacklevel=2)
 

@@ -1,10 +1,12 @@
 """flight.mcap (autopilot.mcap_log): what every run writes beside run.csv, read back with the
-mcap reader; the .tlog conversion (`heli-ground log --mcap OUT.mcap FILE.tlog`)."""
+mcap reader (with and without the summary) and decoded by a CDR reader written here from the
+ROS 2 rules (not the writer's code); the .tlog conversion (`heli-ground log --mcap OUT.mcap FILE.tlog`)."""
 
 from __future__ import annotations
 
-import json
 import math
+import re
+import struct
 import sys
 from collections import defaultdict
 from pathlib import Path
@@ -12,11 +14,11 @@ from typing import Any
 
 import numpy as np
 import pytest
-from mcap.reader import make_reader
+from mcap.reader import NonSeekingReader, make_reader
 
 import heli_sitl as hs
 from autopilot.flight_log import write_flight_tlog
-from autopilot.mcap_log import CHANNELS, McapMissingError, read_run_csv, write_mcap
+from autopilot.mcap_log import CHANNELS, McapMissingError, csv_values, read_run_csv, read_run_mcap, write_mcap
 from ground.cli import main as ground_main
 from ground.log import tlog_columns, tlog_to_mcap
 from heli_common.defaults import HOME
@@ -28,19 +30,89 @@ from heli_common.wire import servo_map
 
 Messages = dict[str, list[tuple[int, int, dict[str, Any]]]]
 
+# -- a CDR reader (XCDR1, little endian, as ROS 2 writes it) from the schema the file carries
+_PRIM = {"bool": "?", "byte": "B", "char": "B", "int8": "b", "uint8": "B", "int16": "h",
+         "uint16": "H", "int32": "i", "uint32": "I", "int64": "q", "uint64": "Q", "float32": "f",
+         "float64": "d"}  # fmt: skip
 
-def read_mcap(path: Path) -> tuple[Messages, dict[str, str]]:
-    """Per topic: (log_time, publish_time, decoded JSON), in file order; the schema names."""
+
+def msg_definitions(schema: str) -> tuple[str, dict[str, list[tuple[str, str]]]]:
+    """The root's name ("" here) and every definition in a ros2msg schema: [(type, name)]."""
+    defs: dict[str, list[tuple[str, str]]] = {}
+    name = ""
+    for part in re.split(r"^={80}$", schema, flags=re.M):
+        lines = [ln.split("#")[0].strip() for ln in part.strip().splitlines()]
+        if lines and lines[0].startswith("MSG: "):
+            name, lines = lines[0][5:].strip(), lines[1:]
+        defs[name] = [(ln.split()[0], ln.split()[1]) for ln in lines if ln and "=" not in ln]
+    return "", defs
+
+
+class Cdr:
+    def __init__(self, data: bytes) -> None:
+        assert data[:4] == b"\x00\x01\x00\x00", "CDR little endian encapsulation"
+        self.data, self.pos = data[4:], 0
+
+    def read(self, fmt: str) -> Any:
+        size = struct.calcsize(fmt)
+        self.pos += -self.pos % size
+        (v,) = struct.unpack_from("<" + fmt, self.data, self.pos)
+        self.pos += size
+        return v
+
+    def string(self) -> str:
+        n = self.read("I")
+        s = self.data[self.pos:self.pos + n]
+        self.pos += n
+        assert s.endswith(b"\x00")
+        return s[:-1].decode()
+
+
+def cdr_decode(schema: str, data: bytes) -> dict[str, Any]:
+    root, defs = msg_definitions(schema)
+    buf = Cdr(data)
+
+    def value(typ: str) -> Any:
+        if typ in _PRIM:
+            return buf.read(_PRIM[typ])
+        if typ == "string":
+            return buf.string()
+        return message(typ)
+
+    def message(typ: str) -> dict[str, Any]:
+        out: dict[str, Any] = {}
+        for t, name in defs[typ]:
+            m = re.fullmatch(r"(.+?)\[(\d*)\]", t)
+            if m is None:
+                out[name] = value(t)
+            else:
+                count = int(m.group(2)) if m.group(2) else buf.read("I")
+                out[name] = [value(m.group(1)) for _ in range(count)]
+        return out
+
+    msg = message(root)
+    assert buf.pos == len(buf.data), "the payload is exactly the message"
+    return msg
+
+
+def read_mcap(path: Path, seeking: bool = True) -> tuple[Messages, dict[str, str]]:
+    """Per topic: (log_time, publish_time, decoded message), in file order; the schema names.
+    ``seeking``: through the summary and its indexes (log-time order); else record by record."""
     out: Messages = defaultdict(list)
     schemas: dict[str, str] = {}
     with path.open("rb") as fh:
-        for schema, channel, msg in make_reader(fh).iter_messages(log_time_order=False):
-            assert channel.message_encoding == "json" and schema is not None
-            assert schema.encoding == "jsonschema"
-            json.loads(schema.data)  # a valid JSON schema document
+        reader = make_reader(fh) if seeking else NonSeekingReader(fh)
+        for schema, channel, msg in reader.iter_messages(log_time_order=seeking):
+            assert channel.message_encoding == "cdr" and schema is not None
+            assert schema.encoding == "ros2msg"
             schemas[channel.topic] = schema.name
-            out[channel.topic].append((msg.log_time, msg.publish_time, json.loads(msg.data)))
+            decoded = cdr_decode(schema.data.decode(), msg.data)
+            out[channel.topic].append((msg.log_time, msg.publish_time, decoded))
     return out, schemas
+
+
+def stamp_ns(m: dict[str, Any]) -> int:
+    return int(m["timestamp"]["sec"]) * 10**9 + int(m["timestamp"]["nanosec"])
 
 
 @pytest.fixture(scope="module")
@@ -72,9 +144,10 @@ def run_csv(written: Path) -> dict[str, np.ndarray]:
 def test_every_channel_with_foxglove_schemas(mcap: tuple[Messages, dict[str, str]]) -> None:
     msgs, schemas = mcap
     assert set(msgs) == set(CHANNELS)
-    assert schemas == {"/tf": "foxglove.FrameTransforms", "/pose": "foxglove.PoseInFrame",
-                       "/reference/pose": "foxglove.PoseInFrame", "/scene": "foxglove.SceneUpdate",
-                       "/fix": "foxglove.LocationFix", "/run": "heli_sitl.RunRow"}  # fmt: skip
+    assert schemas == {"/tf": "foxglove_msgs/msg/FrameTransforms", "/pose": "foxglove_msgs/msg/PoseInFrame",
+                       "/reference/pose": "foxglove_msgs/msg/PoseInFrame",
+                       "/scene": "foxglove_msgs/msg/SceneUpdate", "/fix": "foxglove_msgs/msg/LocationFix",
+                       "/run": "heli_sitl/msg/RunRow"}  # fmt: skip
 
 
 def test_one_pose_per_tick_equal_to_run_csv(mcap: tuple[Messages, dict[str, str]],
@@ -101,8 +174,9 @@ def test_stamps_are_simulation_time_and_monotonic(mcap: tuple[Messages, dict[str
         np.testing.assert_array_equal(log, pub)
         np.testing.assert_array_equal(log, expected)
         assert np.all(np.diff(log) > 0), topic
-    stamp = msgs["/pose"][7][2]["timestamp"]
-    assert stamp["sec"] * 10**9 + stamp["nsec"] == expected[7]
+    for topic in ("/tf", "/pose", "/fix"):  # the messages' own stamps are the log times
+        m = msgs[topic][7][2]
+        assert stamp_ns(m["transforms"][0] if topic == "/tf" else m) == expected[7]
     (scene,) = msgs["/scene"]
     assert scene[0] == expected[0]
 
@@ -145,7 +219,7 @@ def test_tf_tree_scene_fix_and_run_rows(mcap: tuple[Messages, dict[str, str]],
     row = msgs["/run"][250][2]
     assert list(row) == [*run_csv, "pos_err_m"]
     for c, v in run_csv.items():
-        assert row[c] == v[250] or (row[c] is None and math.isnan(v[250])), c
+        assert row[c] == v[250] or (math.isnan(row[c]) and math.isnan(v[250])), c
     err = math.dist([run_csv[f"{a}_ref_m"][250] for a in "xyz"], [run_csv[f"{a}_m"][250] for a in "xyz"])
     assert row["pos_err_m"] == pytest.approx(err, rel=1e-12)
 
@@ -192,7 +266,7 @@ def test_tlog_converted_has_its_poses(flight: hs.FlightResult, tmp_path: Path,
 
 def test_missing_mcap_package_is_named(flight: hs.FlightResult, tmp_path: Path,
                                        monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
-    monkeypatch.setitem(sys.modules, "mcap.writer", None)
+    monkeypatch.setitem(sys.modules, "mcap", None)
     cols = {c: np.zeros(2) for c in ("t_s", "x_m", "y_m", "z_m", "phi_rad", "theta_rad", "psi_rad")}
     with pytest.raises(McapMissingError, match="pip install mcap"):
         write_mcap(cols, tmp_path / "x.mcap")
@@ -200,3 +274,106 @@ def test_missing_mcap_package_is_named(flight: hs.FlightResult, tmp_path: Path,
     with pytest.warns(UserWarning, match="flight.mcap not written: .*pip install mcap"):
         flight.record.write_csv(tmp_path / "run.csv")
     assert (tmp_path / "run.csv").exists() and not (tmp_path / "flight.mcap").exists()
+
+
+def test_file_order_readers_and_summary(written: Path, mcap: tuple[Messages, dict[str, str]]) -> None:
+    """Read record by record (no summary): the same messages as through the summary, log
+    times never decreasing in file order, and the summary's statistics count them."""
+    msgs, _ = mcap
+    linear, _ = read_mcap(written / "flight.mcap", seeking=False)
+    assert {t: [(a, b) for a, b, _ in v] for t, v in linear.items()} == {
+        t: [(a, b) for a, b, _ in v] for t, v in msgs.items()}
+    with (written / "flight.mcap").open("rb") as fh:
+        times = [m.log_time for _, _, m in NonSeekingReader(fh).iter_messages()]
+    assert times == sorted(times) and len(times) == 5 * 1001 + 1
+    with (written / "flight.mcap").open("rb") as fh:
+        summary = make_reader(fh).get_summary()
+    assert summary is not None and summary.statistics is not None
+    stats = summary.statistics
+    counts = {summary.channels[c].topic: k for c, k in stats.channel_message_counts.items()}
+    assert counts == {t: len(v) for t, v in msgs.items()}
+    assert stats.message_count == len(times) and stats.chunk_count == len(summary.chunk_indexes) >= 2
+    assert (stats.message_start_time, stats.message_end_time) == (times[0], times[-1])
+
+
+def test_message_indexes_point_at_their_messages(written: Path) -> None:
+    """Each chunk's Message Index records (what indexed readers seek by): every entry's offset
+    is a Message record of that channel and log time in the chunk's records, all of them."""
+    from mcap.records import Chunk, MessageIndex
+    from mcap.stream_reader import StreamReader
+
+    chunk: Any = None
+    seen = 0
+    with (written / "flight.mcap").open("rb") as fh:
+        for rec in StreamReader(fh, emit_chunks=True, validate_crcs=True).records:
+            if isinstance(rec, Chunk):
+                chunk = rec
+                assert chunk.compression == "" and len(chunk.data) == chunk.uncompressed_size
+            elif isinstance(rec, MessageIndex):
+                for log_time, off in rec.records:
+                    op, _, cid, _, lt = struct.unpack_from("<BQHIQ", chunk.data, off)
+                    assert (op, cid, lt) == (0x05, rec.channel_id, log_time)
+                    seen += 1
+    assert seen == 5 * 1001 + 1
+
+
+def test_read_run_mcap_is_run_csv(written: Path, run_csv: dict[str, np.ndarray]) -> None:
+    """The /run channel read back (the view's replay) holds run.csv's numbers exactly."""
+    back = read_run_mcap(written / "flight.mcap")
+    assert list(back) == [*run_csv, "pos_err_m"]
+    for c, v in run_csv.items():
+        np.testing.assert_array_equal(back[c], v, err_msg=c)
+
+
+def test_csv_values_are_the_csv_numbers() -> None:
+    """run.csv's numbers (%.9g) computed without formatting, bit for bit, over magnitudes,
+    signs, ties, powers of ten and the values that are not numbers."""
+    rng = np.random.default_rng(7)
+    x = np.concatenate([
+        rng.standard_normal(20000) * 10.0 ** rng.integers(-30, 30, 20000),
+        np.round(rng.standard_normal(5000), 4), 10.0 ** np.arange(-25, 25), -(10.0 ** np.arange(-5, 5)),
+        [0.0, -0.0, np.nan, np.inf, -np.inf, 1e300, 5e-324, 0.5, 2.5e-9, 999999999.5, 9999999995.0, 0.125],
+    ])  # fmt: skip
+    expected = np.array([float(f"{v:.9g}") for v in x])
+    got = csv_values(x.reshape(-1, 2) if x.size % 2 == 0 else x)
+    np.testing.assert_array_equal(got.reshape(-1), expected)
+    assert np.array_equal(np.signbit(got.reshape(-1)), np.signbit(expected))
+
+
+def test_ticks_without_a_pose_have_no_pose_message(tmp_path: Path) -> None:
+    """A tick whose pose is not finite (a lost flight's last ticks) has no /tf, /pose or /fix
+    message, its /run row stays (NaN), and both readers read the file."""
+    n = 6
+    cols = {"t_s": np.arange(n) * 0.01, **{c: np.full(n, 0.5) for c in NEEDED_POSE},
+            "x_ref_m": np.zeros(n), "y_ref_m": np.zeros(n), "z_ref_m": np.ones(n)}  # fmt: skip
+    cols["x_m"] = cols["x_m"].copy()
+    cols["x_m"][[2, 5]] = np.nan
+    path = write_mcap(cols, tmp_path / "lost.mcap")
+    for seeking in (True, False):
+        msgs, _ = read_mcap(path, seeking=seeking)
+        for topic in ("/tf", "/pose", "/fix"):
+            assert [lt for lt, _, _ in msgs[topic]] == [0, 10**7, 3 * 10**7, 4 * 10**7], topic
+        assert len(msgs["/reference/pose"]) == len(msgs["/run"]) == n
+        assert math.isnan(msgs["/run"][2][2]["x_m"]) and msgs["/run"][3][2]["x_m"] == 0.5
+    np.testing.assert_array_equal(read_run_mcap(path)["x_m"], cols["x_m"])
+
+
+def test_read_run_mcap_reads_the_earlier_json_rows(tmp_path: Path) -> None:
+    """Files of the bench's earlier writer (JSON /run rows, null for NaN) still replay."""
+    from mcap.writer import Writer
+
+    path = tmp_path / "old.mcap"
+    with path.open("wb") as fh:
+        w = Writer(fh)
+        w.start()
+        sid = w.register_schema(name="heli_sitl.RunRow", encoding="jsonschema", data=b"{}")
+        cid = w.register_channel(topic="/run", message_encoding="json", schema_id=sid)
+        for i, row in enumerate((b'{"t_s":0.0,"x_m":1.5}', b'{"t_s":0.01,"x_m":null}')):
+            w.add_message(cid, log_time=i, publish_time=i, data=row)
+        w.finish()  # type: ignore[no-untyped-call]  # (the library leaves it unannotated)
+    back = read_run_mcap(path)
+    np.testing.assert_array_equal(back["t_s"], [0.0, 0.01])
+    np.testing.assert_array_equal(back["x_m"], [1.5, np.nan])
+
+
+NEEDED_POSE = ("x_m", "y_m", "z_m", "phi_rad", "theta_rad", "psi_rad")
