@@ -28,6 +28,8 @@ if TYPE_CHECKING:
     from autopilot.pid.gains import PidGains
     from autopilot.scenario import Scenario
     from heli_common.wire.links import ServoInput
+    from heli_sitl.launch.children import Child
+    from heli_sitl.view.live import LiveView
 
 GAINS_HELP = ("the controller's gain set instead of the scenario's (configs/: gains_paper.toml, "
               "gains_servo_aware.toml for real servos, see docs/servo-aware-gains.md)")
@@ -130,6 +132,12 @@ def _simulate(args: argparse.Namespace) -> int:
     print(f"wrote {out / 'run.csv'}, {out / 'summary.json'}")
     for f in figs:
         print(f"wrote {f}")
+    if args.view:  # in-process, the flight is over before a browser opens: its replay
+        from heli_common.process import terminate_on_sigterm
+        from heli_sitl.view.commands import replay_after
+
+        terminate_on_sigterm()
+        replay_after("heli-sitl simulate", out / "run.csv", args.view_port)
     return 0
 
 
@@ -414,6 +422,7 @@ def _run(args: argparse.Namespace) -> int:
     check_rt_priority(args.rt_priority, args.mode)
     stop = threading.Event()
     stop_on_signals(stop)
+    view = _run_view(args) if args.view else None  # a process of its own: never in the plant's loop
     airframe, x0, rate = load_vehicle(args.scenario, on_ground=args.on_ground)
     cfg = SimConfig(args.mode, args.rate_hz or rate, args.duration_s, args.timeout_s,
                     hold_until_armed=args.hold_until_armed)  # fmt: skip
@@ -456,6 +465,8 @@ def _run(args: argparse.Namespace) -> int:
         finally:
             if can is not None:
                 can.close()
+    if view is not None:
+        view.stop()
     if args.verbose:
         print(json.dumps({**stats.__dict__, "link": link.stats.as_dict()}), file=sys.stderr)
     if stats.lost:
@@ -468,6 +479,17 @@ def _run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _run_view(args: argparse.Namespace) -> Child:
+    """``run --view``: ``heli-sitl view --listen`` on the API port the autopilot sends to by
+    default (ports + 10 N), as a child process (the plant's loop keeps its core and the GIL)."""
+    from heli_sitl.launch.children import spawn
+
+    api = ports(args.instance).api
+    cmd = [sys.executable, "-m", "heli_sitl.cli", "view", "--listen", str(api), "--port", str(args.view_port),
+           "--scenario", args.scenario]  # fmt: skip
+    return spawn(cmd, "view", echo=True)
+
+
 def _up_ardupilot(args: argparse.Namespace) -> int:
     from heli_sitl.launch import ardupilot
 
@@ -478,21 +500,47 @@ def _up_ardupilot(args: argparse.Namespace) -> int:
         firmware = ardupilot.find_firmware(args.ardupilot_bin, can=can)
     except ardupilot.FirmwareNotFoundError as exc:
         raise UsageError(str(exc)) from exc
+    view = _open_view(args, "heli-sitl up") if args.view else None
     opts = ardupilot.ArduPilotOptions(
         firmware=firmware, instance=args.instance, plant=args.plant, world=args.world, scenario=args.scenario,
         home=args.home, speedup=args.speedup, out=Path(args.out or "out/ardupilot"),
         servo_link="can" if can else "json", can_bus=args.can_bus or "mcast:0",
+        view_port=None if view is None else view.feed.port,
     )  # fmt: skip
     try:
         ardupilot.serve(opts)
     except RuntimeError as exc:
         print(f"heli-sitl up: {exc}", file=sys.stderr)
         return Exit.FAILURE
+    finally:
+        _close_view(view, "heli-sitl up")
     return Exit.OK
+
+
+def _open_view(args: argparse.Namespace, prog: str, *, path: bool = False,
+               forward_to: tuple[str, int] | None = None) -> LiveView:  # fmt: skip
+    """``--view``: the live view (threads of this launcher), listening for the vehicle's
+    telemetry on a port of its own (``.feed.port``: the launcher sends the telemetry there);
+    ``path``: the scenario's reference path drawn in advance (the vehicle flies it)."""
+    from heli_sitl.view.commands import announce, live_for_scenario
+
+    view = live_for_scenario(args.view_port, args.scenario, forward_to=forward_to, draw_path=path,
+                             duration_s=getattr(args, "duration_s", None))  # fmt: skip
+    announce(prog, view.url, "live view")
+    return view
+
+
+def _close_view(view: LiveView | None, prog: str) -> None:
+    if view is not None:
+        from heli_sitl.view.commands import report
+
+        view.close()
+        report(prog, view)
 
 
 def _up(args: argparse.Namespace) -> int:
     from heli_common.process import terminate_on_sigterm
+    from heli_common.wire.mavlink.udp import LOOPBACK
     from heli_sitl.launch.demo import DemoError, UpOptions, serve
 
     terminate_on_sigterm()
@@ -503,38 +551,55 @@ def _up(args: argparse.Namespace) -> int:
                          "servo link is configs/links.toml's [servo] (or demo --servo-link)")
     arg.resolve_instance(args, {"gcs_port": "gcs", "api_port": "api", "local_gcs_port": "local_gcs",
                                 "local_api_port": "local_api"})  # fmt: skip
+    # --view: the API link goes through the view, which relays it to --api-port (MAVSDK still works)
+    view = _open_view(args, "heli-sitl up", forward_to=(LOOPBACK, args.api_port)) if args.view else None
     opts = UpOptions(
         mode=args.mode, rate_hz=args.rate_hz, scenario=args.scenario, in_air=args.in_air,
-        gcs_port=args.gcs_port, api_port=args.api_port, local_gcs_port=args.local_gcs_port,
+        gcs_port=args.gcs_port, api_port=args.api_port if view is None else view.feed.port,
+        local_gcs_port=args.local_gcs_port,
         local_api_port=args.local_api_port, signing_key=args.signing_key, out=args.out,
         sysid=args.sysid, world=args.world, extra_autopilot_args=controller_args(args), plant=args.plant,
         ccpm=args.ccpm, rt_priority=args.rt_priority,
+        view_relays_api_to=None if view is None else args.api_port,
     )  # fmt: skip
     try:
         serve(opts)
     except DemoError as exc:
         print(f"heli-sitl up: {exc}", file=sys.stderr)
         return Exit.FAILURE
+    finally:
+        _close_view(view, "heli-sitl up")
     return Exit.OK
 
 
 def _demo(args: argparse.Namespace) -> int:
-    import numpy as np
-
-    from autopilot.metrics import WORLD_CSV_HEADER
-    from ground.plots import plot_figures, plot_rotor, plot_world, read_csv_columns
     from heli_common.process import terminate_on_sigterm
-    from heli_common.state import PITCH_LABELS
-    from heli_sitl.launch.demo import DemoError, DemoOptions, run_demo
 
     terminate_on_sigterm()
 
     out = Path(args.out)
+    view = _open_view(args, "heli-sitl demo", path=True) if args.view else None
+    try:
+        return _demo_flight(args, out, view)
+    finally:
+        _close_view(view, "heli-sitl demo")
+
+
+def _demo_flight(args: argparse.Namespace, out: Path, view: LiveView | None) -> int:
+    import numpy as np
+
+    from autopilot.metrics import WORLD_CSV_HEADER
+    from ground.plots import plot_figures, plot_rotor, plot_world, read_csv_columns
+    from heli_common.state import PITCH_LABELS
+    from heli_sitl.launch.demo import DemoError, DemoOptions, run_demo
+
+    # --view: the autopilot's API link (telemetry only; nothing the view sends flies) goes to it
+    view_args = () if view is None else ("--api-port", str(view.feed.port))
     opts = DemoOptions(mode=args.mode, rate_hz=args.rate_hz, scenario=args.scenario, out=out,
                        duration_s=args.duration_s, servo_link=args.servo_link,
                        can_bus=args.can_bus, via_ground=not args.autostart, world=args.world,
                        extra_autopilot_args=(("--gains", args.gains) if args.gains else ())
-                       + controller_args(args), extra_plant_args=("--plant", args.plant),
+                       + controller_args(args) + view_args, extra_plant_args=("--plant", args.plant),
                        rt_priority=args.rt_priority)  # fmt: skip
     try:
         summary = run_demo(opts)
@@ -567,6 +632,13 @@ def _demo(args: argparse.Namespace) -> int:
     tlogs = [out / n for n in ("flight.tlog", "ground.tlog") if (out / n).exists()]
     for f in [out / "run.csv", out / "summary.json", *tlogs, *figs]:
         print(f"wrote {f}")
+    if view is not None:  # the flight is over: its last frame and trail stay up until Ctrl-C
+        from heli_sitl.view.commands import announce, serve_until_interrupted
+
+        view.hold_last_frame()  # the last frame is up before the page's address is announced
+        announce("heli-sitl demo", view.url,
+                 "the flight is over; the view keeps its last frame (Ctrl-C to stop)")
+        serve_until_interrupted()
     return 0
 
 
@@ -588,6 +660,22 @@ def _campaign(args: argparse.Namespace) -> int:
               f"their rows in {args.out}/results.parquet say why): exit 3", file=sys.stderr)
         return 3
     return 0
+
+
+VIEW_PORT = 8080  # viser's default (heli_sitl.view.server.DEFAULT_PORT)
+
+
+def add_view_args(p: argparse.ArgumentParser, what: str) -> None:
+    """``--view`` and ``--view-port`` (the page on 127.0.0.1; no browser is opened)."""
+    p.add_argument("--view", action="store_true", help=f"{what} (docs/view.md)")
+    p.add_argument("--view-port", type=arg.bind_port, default=VIEW_PORT,
+                   help=f"--view: the page's TCP port on 127.0.0.1 (default {VIEW_PORT})")
+
+
+def _view(args: argparse.Namespace) -> int:
+    from heli_sitl.view.commands import view_command
+
+    return view_command(args)
 
 
 def rms_line(m: FlightMetrics) -> str:
@@ -692,6 +780,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--estimator", default=None, metavar="FILE",
                    help="estimator tuning (TOML, docs/estimator.md) for a world with [sensors]")
     add_controller_args(s)
+    add_view_args(s, "after the flight, replay it in the browser (an in-process flight is over in a "
+                     "fraction of a second); Ctrl-C to stop")
     s.set_defaults(func=_simulate)
 
     r = sub.add_parser("run", help="the plant process (sim link on UDP loopback)")
@@ -729,6 +819,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="ardupilot-json with --servo-link can: the firmware's parameter files, in load "
                         "order, for SERVOn_MIN/TRIM/MAX (default: those `up --firmware ardupilot` gives it)")
     r.add_argument("-v", "--verbose", action="store_true")
+    add_view_args(r, "a live 3-D view in the browser of the vehicle sending its telemetry to the API port "
+                     "(14540 + 10 N), as a process of its own (heli-sitl view --listen)")
     r.set_defaults(func=_run)
 
     u = sub.add_parser("up", help="plant + autopilot, disarmed on the ground, serving ground stations")
@@ -769,6 +861,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "firmware's CAN bus 1)")
     u.add_argument("--home", default=f"{HOME.lat_deg},{HOME.lon_deg},{HOME.alt_amsl_m}",
                    help="ardupilot: lat,lon,alt of home")
+    add_view_args(u, "a live 3-D view in the browser; the API link goes through it to --api-port "
+                     "(ArduPilot: its SERIAL2 sends to the view)")
     u.set_defaults(func=_up)
 
     d = sub.add_parser("demo", help="plant + autopilot as processes, fly the scenario")
@@ -789,7 +883,23 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--gains", default=None, metavar="FILE", help=GAINS_HELP)
     add_rt_priority_arg(d)
     add_controller_args(d)
+    add_view_args(d, "a live 3-D view in the browser (the autopilot's API link goes to it); after the "
+                     "flight it keeps the last frame until Ctrl-C")
     d.set_defaults(func=_demo)
+
+    vw = sub.add_parser("view", help="replay a recorded flight in the browser, or view a live one "
+                        "(docs/view.md)")
+    vw.add_argument("recording", nargs="?", default=None, metavar="DIR|FILE",
+                    help="a run directory (run.csv, flight.parquet, flight.mcap, flight.tlog) or one "
+                         "such file")
+    vw.add_argument("--port", type=arg.bind_port, default=VIEW_PORT,
+                    help=f"the page's TCP port on 127.0.0.1 (default {VIEW_PORT})")
+    vw.add_argument("--listen", type=arg.bind_port, default=None, metavar="UDP_PORT",
+                    help="a live view instead: of the vehicle sending its MAVLink telemetry to this UDP port")
+    vw.add_argument("--scenario", default=None,
+                    help="the airframe whose pitch limits the panels show (and, live, its path)")
+    vw.add_argument("--paused", action="store_true", help="replay: start paused at the first row")
+    vw.set_defaults(func=_view)
 
     t = sub.add_parser("tune", help="tune a controller's gains on the paper scenario (docs/comparison.md)")
     t.add_argument("--controller", choices=("tlc", "pid"), required=True)

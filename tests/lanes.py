@@ -26,6 +26,7 @@ PROCESS_MODULES = frozenset({
     "test_cli_and_records", "test_gcs_requests", "test_ground_client",
     "test_interop_mavproxy", "test_interop_mavsdk", "test_mavlogdump", "test_port_handoff",
     "test_process_faults", "test_processes", "test_user_controller_realtime", "test_world_processes",
+    "test_view",
 })  # fmt: skip
 # the files that fly on the wall clock or wait on live processes (each file is one unit)
 REALTIME_MODULES = PROCESS_MODULES | {

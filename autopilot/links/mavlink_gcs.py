@@ -260,7 +260,11 @@ class GcsService:
             check_mission=self._check_mission,
         )
         self.intervals_s = {k: 1.0 / v for k, v in cfg.rates_hz.items() if v > 0}
-        self.next_due: dict[int, float] = {}
+        # each message's telemetry grid in whole microseconds of vehicle time (float sums
+        # drift: 0.1 s added up is not 0.05 s added up, and the 10 Hz and 20 Hz messages of
+        # one tick parted): the grid's origin (the first send) and its next point
+        self.grid_origin_us: dict[int, int] = {}
+        self.next_due_us: dict[int, int] = {}
         self.refused = 0
         self._t = 0.0
         self._x: FloatArray = np.zeros(12)
@@ -339,7 +343,7 @@ class GcsService:
             # grid: the heartbeat, then this tick's ATTITUDE and LOCAL_POSITION_NED, so a
             # log places the arming on its tick (ground.log's time origin, run.csv's t = 0)
             self._armed_sent = armed
-            self.next_due.clear()
+            self._restart_grid()
         self._report_events()
         self._telemetry()
 
@@ -373,14 +377,36 @@ class GcsService:
         log.info("%s", text)
         self._send_all([m2.MAVLink_statustext_message(severity, text[:50].encode())])
 
+    def _restart_grid(self, msg_id: int | None = None) -> None:
+        """Send ``msg_id`` (None: every message) at the next tick, on a grid from there."""
+        for d in (self.grid_origin_us, self.next_due_us):
+            if msg_id is None:
+                d.clear()
+            else:
+                d.pop(msg_id, None)
+
+    def _due(self, msg_id: int, interval_s: float, t_us: int) -> bool:
+        """Whether ``msg_id`` goes out at ``t_us``: on its grid (origin + n * interval), at the
+        first tick at or past each point; a tick that skips points sends once and keeps the
+        grid. A clock that went back (a lockstep tick after the idle ticks that kept the
+        ground's heartbeat while the plant was silent, stamped ahead of it) finds the
+        grid's point for its time again, so the flight's telemetry goes on from its tick."""
+        interval_us = max(1, round(interval_s * 1e6))
+        origin = self.grid_origin_us.setdefault(msg_id, t_us)
+        due = self.next_due_us.get(msg_id, t_us)
+        if due - t_us > interval_us:  # the clock went back
+            due = origin - ((origin - t_us) // interval_us) * interval_us  # first point >= t
+        if t_us < due:
+            self.next_due_us[msg_id] = due
+            return False
+        self.next_due_us[msg_id] = origin + ((t_us - origin) // interval_us + 1) * interval_us
+        return True
+
     def _telemetry(self) -> None:
-        t = self._t
+        t_us = round(self._t * 1e6)
         due: list[list[bytes]] = [[] for _ in self.links]  # each link's frames, on its own sequence
         for msg_id, interval in self.intervals_s.items():
-            due_t = self.next_due.get(msg_id, 0.0)
-            if t >= due_t:
-                # next = previous + interval (no drift); restart if more than one behind
-                self.next_due[msg_id] = due_t + interval if t < due_t + interval else t + interval
+            if self._due(msg_id, interval, t_us):
                 try:
                     msg = self.build(msg_id)
                     if msg is not None:  # packing checks every field's range (packed once)
@@ -744,7 +770,7 @@ class GcsService:
             self.intervals_s[msg_id] = max(interval_us * 1e-6, 0.001)
         else:
             return m2.MAV_RESULT_DENIED, ""
-        self.next_due[msg_id] = self._t
+        self._restart_grid(msg_id)  # at once, then at the new rate
         return m2.MAV_RESULT_ACCEPTED, ""
 
     _COMMANDS: dict[int, Callable[[GcsService, list[float], MavlinkUdp, Address], Answer]] = {

@@ -100,6 +100,7 @@ class ArduPilotOptions:
     wipe: bool = True  # -w: start from the parameter files, not the last run's eeprom
     servo_link: str = "json"  # json: the plant flies the JSON frame's PWMs; can: the DroneCAN bus's
     can_bus: str = "mcast:0"  # where the plant listens (the firmware's CAN bus 1 is mcast:0)
+    view_port: int | None = None  # --view: SERIAL2 sends MAVLink to this UDP port (the live view's)
 
 
 def commands(opts: ArduPilotOptions) -> list[tuple[str, list[str], Path | None]]:
@@ -126,6 +127,8 @@ def commands(opts: ArduPilotOptions) -> list[tuple[str, list[str], Path | None]]
                 # SERIAL1 to the bench's ground-station port, where heli-ground and
                 # QGroundControl listen (what MAVProxy's --out 14550 gives sim_vehicle.py users)
                 "--serial1", f"udpclient:127.0.0.1:{ports(opts.instance).gcs}"]  # fmt: skip
+    if opts.view_port is not None:  # the live view listens there (heli_sitl/view)
+        firmware += ["--serial2", f"udpclient:127.0.0.1:{opts.view_port}"]
     if opts.wipe:
         firmware.insert(1, "-w")
     fw_dir = opts.out / "firmware"

@@ -154,6 +154,8 @@ class UpOptions:
     plant: str = "paper"  # the plant model (--plant)
     ccpm: str | None = None  # a swashplate file: CCPM servo channels (heli_common.wire.servo_map)
     rt_priority: int = 0  # real time: both loops under SCHED_FIFO at this priority (0: off)
+    # --view: api_port is the live view's, which relays the API link on to this port
+    view_relays_api_to: int | None = None
 
 
 def up_commands(opts: UpOptions, held: HeldPorts) -> list[tuple[str, list[str], tuple[int, ...]]]:
@@ -199,9 +201,11 @@ def serve(opts: UpOptions, stop_after_s: float | None = None) -> None:
         procs = [(name, spawn(cmd, name, logs / f"{name}.log" if logs else None, echo=True,
                               handoff=(held, own)))
                  for name, cmd, own in up_commands(opts, held)]  # fmt: skip
+    api = opts.api_port if opts.view_relays_api_to is None else opts.view_relays_api_to
     print(
         f"heli-sitl up: the vehicle sends to UDP 127.0.0.1:{opts.gcs_port} (ground stations) from "
-        f":{opts.local_gcs_port} and to :{opts.api_port} (API clients) from :{opts.local_api_port}; "
+        f":{opts.local_gcs_port} and to :{api} (API clients"
+        f"{'' if opts.view_relays_api_to is None else ', through the view'}) from :{opts.local_api_port}; "
         "Ctrl-C to stop",
         flush=True,
     )
