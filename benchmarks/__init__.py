@@ -30,6 +30,8 @@ MODULES = (
     "benchmarks.bench_processes",
     "benchmarks.bench_campaign",
     "benchmarks.bench_user_controller",
+    "benchmarks.bench_mcap",
+    "benchmarks.bench_gym",
 )
 
 

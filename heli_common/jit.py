@@ -7,6 +7,10 @@ the functions it inlines from other modules, so an edit to, say, the differentia
 would leave the controller kernel running old code. The cache directory is therefore
 keyed on a hash of every module that holds compiled code. ``NUMBA_DISABLE_JIT=1`` runs
 the same code as plain Python for debugging; ``NUMBA_CACHE_DIR`` overrides the location.
+
+``@njit(parallel=True)`` compiles a kernel whose :data:`prange` loops run on numba's thread
+pool (cached as well); :func:`max_threads` is how many threads it may use, and
+:func:`set_threads` how many the calling thread's parallel kernels use.
 """
 
 from __future__ import annotations
@@ -15,7 +19,7 @@ import hashlib
 import os
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, TypeVar, cast
+from typing import Any, TypeVar, cast, overload
 
 import numba
 
@@ -43,11 +47,53 @@ if not os.environ.get("NUMBA_CACHE_DIR"):
     setattr(numba.config, "CACHE_DIR", str(_base / "heli-tlc-sitl" / f"numba-{_source_hash()}"))  # noqa: B010
 
 
-def njit(fn: F) -> F:
-    """Compile ``fn`` in nopython mode, cached, keeping its static signature for mypy.
+# numba's OpenMP pool (its threading layer here) would keep its threads spinning at the end of
+# each parallel call; where the cores are shared (other processes, the next call's Python),
+# the spinning thread takes the core the other thread needs: on a busy machine two threads
+# stepping 256 vehicles used 4 times the CPU of one and ran 4 times slower (the same CPU as
+# one, passive). Passive: they sleep at once.
+# Read when the OpenMP library loads (at the first parallel call); a value already set wins.
+os.environ.setdefault("OMP_WAIT_POLICY", "passive")
+
+
+@overload
+def njit(fn: F, /) -> F: ...
+
+
+@overload
+def njit(*, parallel: bool = False) -> Callable[[F], F]: ...
+
+
+def njit(fn: F | None = None, /, *, parallel: bool = False) -> F | Callable[[F], F]:
+    """Compile ``fn`` in nopython mode, cached, keeping its static signature for mypy
+    (``@njit``, or ``@njit(parallel=True)`` for a kernel with :data:`prange` loops: their
+    iterations run on numba's threads, so they must not write what another iteration reads).
 
     numpy's error model: a float division by zero gives inf or NaN, as in numpy, instead of
     a branch to raise ZeroDivisionError at every division (the kernels divide in their
     inner loops; the control law and the estimator refuse non-finite results themselves).
     The same bits wherever no division by zero happens."""
-    return cast(F, numba.njit(cache=True, nogil=True, error_model="numpy")(fn))
+
+    def compile_(f: F) -> F:
+        return cast(F, numba.njit(cache=True, nogil=True, error_model="numpy", parallel=parallel)(f))
+
+    return compile_(fn) if fn is not None else compile_
+
+
+# a loop over independent iterations, run on numba's threads in a parallel kernel (range elsewhere)
+prange: Callable[..., range] = numba.prange
+
+
+def max_threads() -> int:
+    """The threads a parallel kernel may use: the cores this process may run on (its CPU
+    affinity), at most numba's thread pool (NUMBA_NUM_THREADS)."""
+    return max(1, min(len(os.sched_getaffinity(0)), int(numba.config.NUMBA_NUM_THREADS)))  # type: ignore[attr-defined]
+
+
+def set_threads(n: int) -> int:
+    """The parallel kernels called from this thread use ``n`` threads (1 to
+    ``numba.config.NUMBA_NUM_THREADS``); returns the number they used before."""
+    before = int(numba.get_num_threads())
+    if n != before:
+        numba.set_num_threads(n)
+    return before

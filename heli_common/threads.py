@@ -22,24 +22,29 @@ import sys
 
 __all__ = ["SINGLE_THREAD_ENV", "blas_threads_limited", "one_blas_thread"]
 
-#: the thread pools of OpenMP, OpenBLAS, MKL and numba's parallel layer, each set to 1
+#: the thread pools of OpenMP, OpenBLAS, MKL and numba's parallel layer, each set to 1 (the
+#: environment of a worker process: one flight a process)
 SINGLE_THREAD_ENV = {
     "OMP_NUM_THREADS": "1",
     "OPENBLAS_NUM_THREADS": "1",
     "MKL_NUM_THREADS": "1",
     "NUMBA_NUM_THREADS": "1",
 }
+# what every process of ours limits: the BLAS pools. Not numba's: its pool serves only the
+# parallel kernels (the vectorised Gymnasium env, heli_sitl.engine.batch), which are there to
+# use the cores, start no thread until one runs, and are sized per call (heli_common.jit)
+_BLAS_POOLS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
 _LIMITED_AT_LOAD: bool | None = None  # whether the limit was in place when first asked
 
 
 def one_blas_thread() -> None:
-    """Set each pool of :data:`SINGLE_THREAD_ENV` to one thread unless already set."""
+    """Set each BLAS pool of :data:`SINGLE_THREAD_ENV` to one thread unless already set."""
     global _LIMITED_AT_LOAD
     if _LIMITED_AT_LOAD is None:
         _LIMITED_AT_LOAD = "numpy" not in sys.modules
-    for k, v in SINGLE_THREAD_ENV.items():
-        os.environ.setdefault(k, v)
+    for k in _BLAS_POOLS:
+        os.environ.setdefault(k, SINGLE_THREAD_ENV[k])
 
 
 def blas_threads_limited() -> bool:

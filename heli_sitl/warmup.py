@@ -68,6 +68,21 @@ def main() -> None:
     simulate(sc, SimOptions(duration_s=0.1, controller=_Hold))
     simulate(sc, SimOptions(duration_s=0.1, world=World.load("noisy"), estimator=EstimatorConfig.load("ins")))
     simulate(sc, SimOptions(duration_s=0.1, world=World.load("everything")))
+    # the Gymnasium environments' batched kernel (heli_sitl.engine.batch), and a policy flown
+    # as a controller
+    from heli_sitl.gym.env import HeliTrackEnv
+    from heli_sitl.gym.policy import PolicyConfig, policy_controller
+
+    env = HeliTrackEnv(duration_s=0.1)
+    env.reset(seed=0)
+    env.step(np.zeros(4))
+    from heli_sitl.gym.vector import HeliTrackVectorEnv
+
+    envs = HeliTrackVectorEnv(num_envs=2, duration_s=0.1)  # the parallel kernel, one run of vehicles a core
+    envs.reset(seed=0)
+    envs.step(np.zeros((2, 4)))
+    flyer = policy_controller(lambda o: np.zeros(4), PolicyConfig.of(env))
+    simulate(sc, SimOptions(duration_s=0.1, controller=flyer))
     print(f"heli_sitl.warmup: compiled code ready in {time.perf_counter() - t0:.1f} s")
 
 
