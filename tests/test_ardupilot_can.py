@@ -196,10 +196,14 @@ def test_ardupilot_flies_the_rotor_plant_with_its_servos_on_dronecan(tmp_path: P
     assert can["node_status_sent"] > 10, can  # the servos' node (HEALTH_OK): the firmware armed with it
     assert cc["frames"] + cc["frames_before_command"] == stats["frames"]
     assert cc["frames_before_command"] < 1200 * 20, cc  # the first command 6.8-8.1 s into the physics
-    # in flight (paced): ~100 commands per second of physics, none older than 0.5 s at a step
+    # in flight the plant paces the lockstep to the bus (heli_plant/ardupilot_backend.py: a frame
+    # waits up to 2 ms of wall for a command while the newest is over 20 ms of physics old), so
+    # the firmware's commands come at 50 Hz of physics or more: 66-101 Hz on an idle machine,
+    # 49.0 in two loaded runs (its CAN thread starved, the pacing's floor), and none is held
+    # long (0.038 and 0.051 s measured there)
     rate = cc["rotor_on_commands"] / cc["rotor_on_s"]
     print(f"in flight: {rate:.0f} commands/s of physics, held at most {cc['rotor_on_max_stale_s']:.3f} s")
-    assert rate > 50.0 and cc["rotor_on_max_stale_s"] < 0.5, cc
+    assert rate > 45.0 and cc["rotor_on_max_stale_s"] < 0.15, cc
     # the JSON frame, cross-checked: in flight the bus lags it (a few us); large disagreements rare
     assert cc["disagree_large_frames"] < 0.05 * cc["frames"], cc  # 0.1-1.1 % measured
 
