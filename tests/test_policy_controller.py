@@ -1,8 +1,11 @@
 """A policy flies wherever a controller flies (heli_sitl/gym/policy.py): the env's rollout,
-in hs.simulate and in lockstep processes, from one object."""
+in hs.simulate, in lockstep processes and in a campaign on Dask workers, from one object."""
 
 from __future__ import annotations
 
+import json
+import subprocess
+import sys
 from collections.abc import Callable
 from pathlib import Path
 
@@ -77,3 +80,22 @@ def test_a_saved_policy_flies_in_lockstep_processes_as_in_the_env(tmp_path: Path
     for k in range(3):
         wire = cols[STATE_NAMES[k]].astype(np.float32)
         assert np.array_equal(wire, x[:, k].astype(np.float32)), STATE_NAMES[k]
+    # the same name in a campaign: its workers load the policy; the start as the env's flies
+    # the env's flight (the campaign's metrics from the same record)
+    camp = tmp_path / "policy.toml"
+    camp.write_text(f'name = "policy"\nscenario = "paper"\nsampler = "grid"\nseed = 1\n'
+                    f'duration_s = {DURATION_S}\n[[vary]]\nkey = "initial.yaw_error_rad"\n'
+                    'dist = "grid"\nvalues = [0.0, 0.5]\n')  # fmt: skip
+    out = subprocess.run(
+        [sys.executable, "-m", "heli_sitl.cli", "campaign", str(camp), "--out", str(tmp_path / "camp"),
+         "--controller", spec, "--workers", "1", "--quiet", "--no-figures"],
+        capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert out.returncode == 0, out.stderr[-2000:]
+    counts = json.loads((tmp_path / "camp" / "campaign.json").read_text())["counts"]
+    assert counts["flights"] == 2 and counts["failed"] == 0
+    import pyarrow.parquet as pq
+
+    rows = pq.read_table(tmp_path / "camp" / "results.parquet").to_pylist()
+    first = next(r for r in rows if r["initial.yaw_error_rad"] == 0.0)
+    assert first["rms_10_m"] == m.rms_10_m
