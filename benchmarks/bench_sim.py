@@ -23,6 +23,7 @@ from autopilot.tlc.controller import N_DIAG, TLController, tlc_kernel
 from benchmarks import Row, above, below, bench
 from heli_common.state import N_PITCH, POS
 from heli_common.vehicle.plant_model import PlantModel
+from heli_common.wire.mavlink.sim_protocol import state_as_received
 from heli_plant.model import Plant, plant_step
 from heli_sitl.engine.closed_loop import SimOptions, simulate
 
@@ -74,11 +75,14 @@ def bench_tlc_step() -> list[Row]:
     ctrl.reset()
     outs = np.empty((n, N_PITCH))
 
+    # the flight's controller saw each state as the sim link carries it (float32 fields)
+    seen = np.array([state_as_received(x) for x in rec.x])
+
     def update(i: int) -> None:
-        outs[i] = ctrl.update(rec.t_s[i], rec.x[i], rec.ref[i])
+        outs[i] = ctrl.update(rec.t_s[i], seen[i], rec.ref[i])
 
     t_update = median_ns(update, n) / 1e3
-    # replaying the recorded states must reproduce the recorded commands exactly
+    # replaying the states the controller saw must reproduce the recorded commands exactly
     same = bool(np.array_equal(outs, rec.pitches))
 
     k, st = ctrl.constants, np.zeros_like(ctrl.state)
