@@ -307,3 +307,17 @@ def test_a_held_last_frame_is_where_a_new_browser_starts_looking() -> None:
     assert shown is not None and shown.pos_nwu_m == pytest.approx((7.0, -3.0, 4.0))
     assert held.position == pytest.approx(np.add((7.0, -3.0, 4.0), CAMERA_OFFSET_M))
     assert held.look_at == pytest.approx((7.0, -3.0, 4.0))
+
+
+@pytest.mark.parametrize("name", ["flight.mcap", "run.csv", "flight.parquet", "flight.tlog"])
+def test_a_file_its_reader_cannot_read_is_a_clear_error(tmp_path: Path, name: str) -> None:
+    """Garbage under each accepted name: one line naming the file and the reader's complaint
+    (`heli-sitl view` prints it and exits 2), never a traceback."""
+    bad = tmp_path / name
+    bad.write_bytes(b"garbage\x00\x01 not a flight\n")
+    with pytest.raises(RecordingError, match=rf"{name}: (cannot be read as|no column|no rows)"):
+        load_recording(bad)
+    out = subprocess.run([sys.executable, "-m", "heli_sitl.cli", "view", str(bad)], capture_output=True,
+                         text=True, timeout=60, cwd=ROOT)  # fmt: skip
+    assert out.returncode == 2 and "Traceback" not in out.stderr, out.stderr
+    assert name in out.stderr

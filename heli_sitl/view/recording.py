@@ -41,37 +41,44 @@ def find_recording(path: Path) -> Path:
 
 
 def read_columns(path: Path) -> Columns:
-    """run.csv's columns from any accepted file (see the module docstring)."""
+    """run.csv's columns from any accepted file (see the module docstring); a file its reader
+    cannot read is a :class:`RecordingError` naming the file and what is wrong with it."""
     suffix = path.suffix.lower()
-    if suffix == ".csv":
-        from autopilot.mcap_log import read_run_csv
-
-        cols = read_run_csv(path)
-    elif suffix == ".parquet":
-        import pyarrow.parquet as pq
-
-        table = pq.read_table(path)
-        cols = {name: np.asarray(table.column(name).to_numpy(), dtype=float) for name in table.column_names}
-    elif suffix == ".mcap":
-        from autopilot import mcap_log
-
-        reader = getattr(mcap_log, "read_run_mcap", None)
-        if reader is None:
-            raise RecordingError(f"{path}: this installation cannot read MCAP back yet (autopilot.mcap_log"
-                                 ".read_run_mcap is missing); replay the run.csv beside it")
-        cols = reader(path)
-    elif suffix == ".tlog":
-        from ground.log import tlog_columns
-
-        cols = tlog_columns(path)
-    else:
+    kinds = {".csv": "run.csv", ".parquet": "flight.parquet", ".mcap": "MCAP file", ".tlog": ".tlog"}
+    if suffix not in kinds:
         raise RecordingError(f"{path}: not a run.csv, flight.parquet, .mcap or .tlog")
+    try:
+        cols = _read(path, suffix)
+    except RecordingError:
+        raise
+    except Exception as exc:  # each reader's own errors (csv, Arrow, MCAP, MAVLink): one clear line
+        why = f"{type(exc).__name__}: {exc}"
+        raise RecordingError(f"{path}: cannot be read as a {kinds[suffix]} ({why})") from None
     missing = [c for c in NEEDED if c not in cols]
     if missing:
         raise RecordingError(f"{path}: no column {', '.join(missing)}")
     if len(cols["t_s"]) == 0:
         raise RecordingError(f"{path}: no rows")
     return cols
+
+
+def _read(path: Path, suffix: str) -> Columns:
+    if suffix == ".csv":
+        from autopilot.mcap_log import read_run_csv
+
+        return read_run_csv(path)
+    if suffix == ".parquet":
+        import pyarrow.parquet as pq
+
+        table = pq.read_table(path)
+        return {name: np.asarray(table.column(name).to_numpy(), dtype=float) for name in table.column_names}
+    if suffix == ".mcap":
+        from autopilot.mcap_log import read_run_mcap
+
+        return read_run_mcap(path)
+    from ground.log import tlog_columns
+
+    return tlog_columns(path)
 
 
 @dataclass(frozen=True)
