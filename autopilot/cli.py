@@ -31,7 +31,7 @@ from heli_common import cli_args as arg
 from heli_common.defaults import HOME, Exit, ports
 from heli_common.geo import parse_geo_point
 from heli_common.process import UsageError, run_main, stop_on_signals
-from heli_common.rt_priority import add_rt_priority_arg, apply_rt_priority, check_rt_priority, current_policy
+from heli_common.rt_priority import add_rt_priority_arg, check_rt_priority, rt_priority_loop
 from heli_common.wire.links import ServoOutput
 from heli_common.wire.mavlink.udp import LOOPBACK
 from heli_common.wire.mavlink.wire import read_signing_key
@@ -182,8 +182,8 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
             if gcs is not None:
                 gcs.truth = lambda: runner.sample
                 gcs.nav = lambda: runner.nav
-            apply_rt_priority(args.rt_priority, args.mode, log)  # the loop's, after the start-up
-            stats = runner.run(stop)
+            with rt_priority_loop(args.rt_priority, args.mode, log) as scheduling:
+                stats = runner.run(stop)
             link = sim.udp.stats.as_dict()
             asm = sim.assembler
             link.update(out_of_order=asm.out_of_order, time_jumps=asm.time_jumps,
@@ -203,7 +203,7 @@ def run(args: argparse.Namespace, stop: threading.Event) -> int:
             "feedforward": ctrl.feedforward.value if isinstance(ctrl, TLController) else None,
             "gains": ctrl.gains.name, "controller": ctrl.kind if ctrl.kind != "user" else args.controller,
             "summary_end_s": args.summary_end_s,
-            "loop": stats.summary(), "scheduling": current_policy(), "sim_link": link,
+            "loop": stats.summary(), "scheduling": scheduling, "sim_link": link,
             "gcs_link": gcs.stats() if gcs is not None else None,
             "servo_link": servo.link, "can": dict(can.stats) if can is not None else None,
         })  # fmt: skip

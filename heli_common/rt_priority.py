@@ -15,8 +15,10 @@ the loop runs as before. Never in lockstep: its waits spin.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import os
+from collections.abc import Iterator
 
 from heli_common.cli_args import in_range
 from heli_common.process import UsageError
@@ -71,13 +73,24 @@ def check_rt_priority(priority: int, mode: str) -> None:
         raise UsageError(f"--rt-priority is for --mode realtime (lockstep's waits spin), got --mode {mode}")
 
 
-def apply_rt_priority(priority: int, mode: str, log: logging.Logger) -> None:
-    """The process's ``--rt-priority``: requested in real time (a refusal is a warning, the
-    loop runs as before); UsageError in lockstep. Call it from the loop's thread just before
-    the loop: the start-up (imports, loading compiled code, building the controller) then
-    runs under the default policy, and two starting processes under SCHED_FIFO at one
-    priority cannot hold a core from each other's running loops."""
+def request_default_policy() -> None:
+    """Back to the default time-sharing policy (lowering one's own policy needs no privilege)."""
+    if hasattr(os, "sched_setscheduler") and os.sched_getscheduler(0) != os.SCHED_OTHER:
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+
+
+@contextlib.contextmanager
+def rt_priority_loop(priority: int, mode: str, log: logging.Logger) -> Iterator[str]:
+    """The process's ``--rt-priority`` for the loop inside the ``with`` only; yields the policy
+    the loop runs under ("fifo 10", "other"). A refusal is a warning (the loop runs as before);
+    UsageError in lockstep. Enter it from the loop's thread just before the loop: the start-up
+    (imports, loading compiled code, building the controller) runs under the default policy,
+    and so does what follows the loop: writing a flight's record is seconds of computation,
+    and under SCHED_FIFO it would hold a core from every other real-time loop at the same
+    priority on the machine (a FIFO task is never preempted by its equals; two records written
+    at once hold both cores of a small machine)."""
     if priority == 0:
+        yield current_policy()
         return
     check_rt_priority(priority, mode)
     reason = request_fifo(priority)
@@ -85,3 +98,7 @@ def apply_rt_priority(priority: int, mode: str, log: logging.Logger) -> None:
         log.info("scheduling: SCHED_FIFO at priority %d", priority)
     else:
         log.warning("--rt-priority %d: %s; running under the default policy", priority, reason)
+    try:
+        yield current_policy()
+    finally:
+        request_default_policy()

@@ -17,7 +17,7 @@ from heli_common.config import ConfigError
 from heli_common.defaults import HOME, Exit, ports
 from heli_common.geo import parse_geo_point
 from heli_common.process import UsageError, run_main, stop_on_signals
-from heli_common.rt_priority import add_rt_priority_arg, apply_rt_priority, check_rt_priority
+from heli_common.rt_priority import add_rt_priority_arg, check_rt_priority, rt_priority_loop
 from heli_common.vehicle.plant_model import PLANT_HELP
 from heli_common.wire.servo_link import add_servo_args, servo_map_for
 from heli_common.wire.servo_map import limits_array
@@ -457,9 +457,10 @@ def _run(args: argparse.Namespace) -> int:
 
             servo_in = MavlinkServoInput(link, SimCodec(system_id=1, component_id=51), servos)
         try:
-            # SCHED_FIFO from here: the start-up above ran under the default policy
-            apply_rt_priority(args.rt_priority, args.mode, logging.getLogger("heli-sitl"))
-            stats = PlantServer(plant, link, cfg, servo_in).run(stop)
+            # SCHED_FIFO for the loop only: the start-up above and the record after run under
+            # the default policy
+            with rt_priority_loop(args.rt_priority, args.mode, logging.getLogger("heli-sitl")):
+                stats = PlantServer(plant, link, cfg, servo_in).run(stop)
             if can is not None:
                 stats.extra["can"] = dict(can.stats)
         finally:

@@ -23,11 +23,17 @@ NO_PRIVILEGE = ["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups", "
                 "--bounding-set=-all"]  # nobody, without capabilities  # fmt: skip
 
 
-def _probe(prefix: list[str]) -> list[str]:
+LOOP_PROBE = ("import logging; from heli_common.rt_priority import rt_priority_loop, current_policy\n"
+              "with rt_priority_loop(10, 'realtime', logging.getLogger()) as p:\n"
+              "    print(p, '|', current_policy())\n"
+              "print(current_policy())")
+
+
+def _probe(prefix: list[str], code: str = PROBE) -> list[str]:
     """request_fifo(10) in a child (the test process keeps its own policy). Without the
     compiler: nobody may not write the compile cache, and nothing here is compiled."""
     env = {**os.environ, "PYTHONPATH": str(ROOT), "NUMBA_DISABLE_JIT": "1"}
-    done = subprocess.run([*prefix, sys.executable, "-c", PROBE], capture_output=True, text=True, timeout=60,
+    done = subprocess.run([*prefix, sys.executable, "-c", code], capture_output=True, text=True, timeout=60,
                           cwd=ROOT, env=env)  # fmt: skip
     assert done.returncode == 0, done.stderr[-800:]
     return done.stdout.strip().splitlines()
@@ -45,6 +51,13 @@ def test_zero_leaves_the_policy_and_out_of_range_is_refused() -> None:
 @pytest.mark.skipif(not IS_ROOT, reason="SCHED_FIFO needs root here (CAP_SYS_NICE a test cannot tell)")
 def test_a_permitted_request_runs_the_thread_under_fifo() -> None:
     assert _probe([]) == ["None", "fifo 10"]
+
+
+@pytest.mark.skipif(not IS_ROOT, reason="SCHED_FIFO needs root here")
+def test_the_loop_alone_runs_under_fifo_and_what_follows_it_does_not() -> None:
+    """A flight's record is written after its loop: under SCHED_FIFO it would hold a core from
+    every other real-time loop at the priority (two at once: both cores of a small machine)."""
+    assert _probe([], LOOP_PROBE) == ["fifo 10 | fifo 10", "other"]
 
 
 @pytest.mark.skipif(not (IS_ROOT and shutil.which("setpriv")), reason="needs root and setpriv to drop rights")
