@@ -90,7 +90,7 @@ def _simulate(args: argparse.Namespace) -> int:
                       file=sys.stderr, end="")  # fmt: skip
                 return Exit.FAILURE
             raise
-    record.write_csv(out / "run.csv")
+    record.write_csv(out / "run.csv", mcap=not args.no_mcap)
     summary = record.write_summary(out / "summary.json")
     title = f"{scenario.run.name}, {record.extra['feedforward'] or record.extra['controller']}"
     figs = plot_figures(record.columns(), out, title=title)
@@ -775,6 +775,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "(t_s,x_m,y_m,z_m[,...] or t,x,y,z[,yaw], or a run.csv)")
     s.add_argument("--out", required=True, help="output directory")
     s.add_argument("--quiet", action="store_true", help="no progress bar")
+    s.add_argument("--no-mcap", action="store_true", help="write no flight.mcap beside run.csv")
     s.add_argument("--world", default=None, metavar="FILE|PRESET", help=WORLD_HELP)
     s.add_argument("--plant", default="paper", metavar="paper|gavrilets|FILE", help=PLANT_HELP)
     s.add_argument("--gains", default=None, metavar="FILE", help=GAINS_HELP)

@@ -276,6 +276,15 @@ def test_missing_mcap_package_is_named(flight: hs.FlightResult, tmp_path: Path,
     assert (tmp_path / "run.csv").exists() and not (tmp_path / "flight.mcap").exists()
 
 
+def test_simulate_writes_the_mcap_unless_told_not_to(tmp_path: Path) -> None:
+    from heli_sitl.cli import main as sitl_main
+
+    for flag, written in (([], True), (["--no-mcap"], False)):
+        out = tmp_path / str(written)
+        assert sitl_main(["simulate", "--quiet", "--duration-s", "1", "--out", str(out), *flag]) == 0
+        assert (out / "run.csv").exists() and (out / "flight.mcap").exists() is written
+
+
 def test_file_order_readers_and_summary(written: Path, mcap: tuple[Messages, dict[str, str]]) -> None:
     """Read record by record (no summary): the same messages as through the summary, log
     times never decreasing in file order, and the summary's statistics count them."""
