@@ -245,11 +245,12 @@ class PlantServer:
                 applied = True
             now = time.monotonic()
             if applied:
-                last_cmd = now
                 self._mark_silent(False)
                 self._advance(dt)
                 self._publish()
-                sent_at = now
+                # the autopilot's silence counts from the state it was sent: a slow step here
+                # (code compiled on first use, a busy core) is the plant's own time, not its
+                sent_at = last_cmd = time.monotonic()
                 continue
             if now - last_cmd > self.cfg.timeout_s:
                 self._mark_silent(True)

@@ -32,7 +32,7 @@ PROCESS_MODULES = frozenset({
 REALTIME_MODULES = PROCESS_MODULES | {
     "test_ardupilot_sitl", "test_ardupilot_compare", "test_ardupilot_backend", "test_ardupilot_json",
     "test_rt_priority", "test_runner_clock", "test_can_servo", "test_gcs_adversary", "test_pid",
-    "test_ardupilot_can",
+    "test_ardupilot_can", "test_plant_server",
 }  # fmt: skip
 CPU_LANE_NICE = 10  # CFS weight 110 against 1024: a waking real-time process preempts at once
 
