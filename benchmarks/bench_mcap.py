@@ -35,8 +35,11 @@ TARGET = 1.10  # issue 48: the flight writing MCAP at most 10 % slower than with
 def command_s(out: Path, *extra: str) -> float:
     """Wall time of ``heli-sitl simulate --quiet --out OUT`` (the paper scenario) as a process."""
     t0 = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "heli_sitl.cli", "simulate", "--quiet", "--out", str(out), *extra],
-                   check=True, capture_output=True, timeout=300)  # fmt: skip
+    done = subprocess.run([sys.executable, "-m", "heli_sitl.cli", "simulate", "--quiet", "--out", str(out),
+                           *extra], capture_output=True, text=True, timeout=300)  # fmt: skip
+    if done.returncode != 0:
+        last = (done.stderr.strip().splitlines() or ["no output"])[-1]
+        raise RuntimeError(f"heli-sitl simulate {' '.join(extra)} failed (exit {done.returncode}): {last}")
     return time.perf_counter() - t0
 
 

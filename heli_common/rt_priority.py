@@ -73,18 +73,13 @@ def check_rt_priority(priority: int, mode: str) -> None:
         raise UsageError(f"--rt-priority is for --mode realtime (lockstep's waits spin), got --mode {mode}")
 
 
-def request_default_policy() -> None:
-    """Back to the default time-sharing policy (lowering one's own policy needs no privilege)."""
-    if hasattr(os, "sched_setscheduler") and os.sched_getscheduler(0) != os.SCHED_OTHER:
-        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-
-
 @contextlib.contextmanager
 def rt_priority_loop(priority: int, mode: str, log: logging.Logger) -> Iterator[str]:
-    """The process's ``--rt-priority`` for the loop inside the ``with`` only; yields the policy
-    the loop runs under ("fifo 10", "other"). A refusal is a warning (the loop runs as before);
-    UsageError in lockstep. Enter it from the loop's thread just before the loop: the start-up
-    (imports, loading compiled code, building the controller) runs under the default policy,
+    """The process's ``--rt-priority`` for the loop inside the ``with`` only (then the policy
+    the thread had again); yields the policy the loop runs under ("fifo 10", "other"). A
+    refusal is a warning (the loop runs as before); UsageError in lockstep. Enter it from the
+    loop's thread just before the loop: the start-up (imports, loading compiled code,
+    building the controller) runs under the default policy,
     and so does what follows the loop: writing a flight's record is seconds of computation,
     and under SCHED_FIFO it would hold a core from every other real-time loop at the same
     priority on the machine (a FIFO task is never preempted by its equals; two records written
@@ -93,6 +88,7 @@ def rt_priority_loop(priority: int, mode: str, log: logging.Logger) -> Iterator[
         yield current_policy()
         return
     check_rt_priority(priority, mode)
+    before = (os.sched_getscheduler(0), os.sched_getparam(0)) if hasattr(os, "sched_getscheduler") else None
     reason = request_fifo(priority)
     if reason is None:
         log.info("scheduling: SCHED_FIFO at priority %d", priority)
@@ -101,4 +97,5 @@ def rt_priority_loop(priority: int, mode: str, log: logging.Logger) -> Iterator[
     try:
         yield current_policy()
     finally:
-        request_default_policy()
+        if before is not None and reason is None:  # the policy it had (lowering needs no privilege)
+            os.sched_setscheduler(0, *before)

@@ -58,6 +58,9 @@ def test_the_loop_alone_runs_under_fifo_and_what_follows_it_does_not() -> None:
     """A flight's record is written after its loop: under SCHED_FIFO it would hold a core from
     every other real-time loop at the priority (two at once: both cores of a small machine)."""
     assert _probe([], LOOP_PROBE) == ["fifo 10 | fifo 10", "other"]
+    # a thread already under FIFO (`chrt -f 5 heli-sitl ...`) gets its own policy back
+    assert _probe([], "from heli_common.rt_priority import request_fifo; request_fifo(5)\n" + LOOP_PROBE) == [
+        "fifo 10 | fifo 10", "fifo 5"]
 
 
 @pytest.mark.skipif(not (IS_ROOT and shutil.which("setpriv")), reason="needs root and setpriv to drop rights")
